@@ -1,0 +1,36 @@
+"""Checkpoints: everything a run needs to continue exactly, written atomically."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from model.config import RunConfig
+from model.networks import GlobalGenerator
+
+
+def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
+    """Write to a temporary name and rename, so a crash never leaves half a file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: Path) -> dict[str, Any]:
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"{path}: no checkpoint")
+    return torch.load(path, map_location="cpu", weights_only=True)
+
+
+def load_generator(path: Path) -> tuple[GlobalGenerator, RunConfig, dict[str, Any]]:
+    """The generator of a checkpoint, in eval mode, with the run config it was built from."""
+    state = load_checkpoint(path)
+    config = RunConfig.model_validate(state["config"])
+    generator = GlobalGenerator(config.generator)
+    generator.load_state_dict(state["generator"])  # strict: a config mismatch fails loudly
+    return generator.eval(), config, state

@@ -1,0 +1,93 @@
+"""The ``rgb2cloud`` command line: train, evaluate, export.
+
+Heavy imports happen inside each command, so ``rgb2cloud --help`` is instant and
+the torch-free parts of the project never pay for torch.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+app = typer.Typer(help="rgb2cloud: metric depth and point clouds from one RGB image.", no_args_is_help=True)
+
+
+@app.command()
+def train(
+    config: Annotated[Path, typer.Argument(help="YAML run config", exists=True, dir_okay=False)],
+    set_: Annotated[list[str], typer.Option("--set", "-s", help="override, e.g. -s train.steps=2000")] = [],  # noqa: B006
+    resume: Annotated[bool, typer.Option(help="continue from <out_dir>/checkpoints/last.pt")] = False,
+) -> None:
+    """Train the depth cGAN. Runs alone, or under torchrun for DistributedDataParallel."""
+    from model.config import load_config
+    from model.train import train as run
+
+    summary = run(load_config(config, set_), resume=resume)
+    if summary["best"]:
+        best = summary["best"]
+        typer.echo(f"best validation {best['metrics']} at step {best['step']}")
+
+
+@app.command()
+def evaluate(
+    checkpoint: Annotated[Path, typer.Argument(help="a training checkpoint (.pt)", exists=True, dir_okay=False)],
+    format: Annotated[str, typer.Option(help="7scenes | tum | nyu | csv")],
+    root: Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)],
+    frames: Annotated[str | None, typer.Option(help="7scenes frame ranges, e.g. 850-999")] = None,
+    split: Annotated[str, typer.Option(help="nyu: train | test | all")] = "all",
+    out: Annotated[Path, typer.Option(help="folder for metrics.json, metrics.md and plots")] = Path("runs/eval"),
+    min_depth: Annotated[float, typer.Option(help="valid ground truth from (m)")] = 0.1,
+    max_depth: Annotated[float, typer.Option(help="valid ground truth up to (m)")] = 10.0,
+    samples: Annotated[int, typer.Option(help="rows in samples.png")] = 4,
+) -> None:
+    """Score a checkpoint with the paper's metrics and print the paper's table."""
+    from model.checkpoint import load_generator
+    from model.config import DataSource
+    from model.data.sources import describe, open_source
+    from model.evaluate import evaluate_frames, write_report
+
+    generator, config, state = load_generator(checkpoint)
+    source = DataSource(format=format, root=root, frames=frames, split=split)
+    result, per_image, grid = evaluate_frames(
+        generator,
+        config.depth,
+        open_source(source),
+        min_m=min_depth,
+        max_m=max_depth,
+        samples=samples,
+        progress=True,
+    )
+    label = f"rgb2cloud ({checkpoint.name}, step {state['step']})"
+    table = write_report(
+        out, result, per_image, grid, split=describe(source), label=label, depth_range=(min_depth, max_depth)
+    )
+    typer.echo(table)
+    typer.echo(f"wrote {out}/metrics.json, metrics.md, pc_rmse_curve.png, samples.png")
+
+
+@app.command()
+def export(
+    checkpoint: Annotated[Path, typer.Argument(help="a training checkpoint (.pt)", exists=True, dir_okay=False)],
+    name: Annotated[str, typer.Option(help="model name in the registry")],
+    version: Annotated[str, typer.Option(help="semantic version, e.g. 0.1.0; never reused")],
+    metrics: Annotated[list[Path], typer.Option(help="metrics.json from evaluate (repeatable)", exists=True)],
+    parity_image: Annotated[Path, typer.Option(help="a real RGB image for the parity check", exists=True)],
+    registry: Annotated[Path, typer.Option(help="registry folder")] = Path("weights"),
+) -> None:
+    """Export ONNX + TorchScript, check parity with eager PyTorch, publish a version."""
+    from model.card import load_card
+    from model.export import export_and_publish
+
+    target = export_and_publish(checkpoint, registry, name, version, metrics, parity_image)
+    card = load_card(target)
+    for file_name, digest in card.files.items():
+        typer.echo(f"{file_name}  sha256 {digest}")
+    for check, diff in card.parity.items():
+        typer.echo(f"parity {check}: max abs diff {diff:.2e}")
+    typer.echo(f"published {target}")
+
+
+def main() -> None:
+    app()

@@ -1,0 +1,175 @@
+"""Run configuration: one typed tree, loaded from YAML plus ``key=value`` overrides.
+
+Torch-free, because the model card embeds ``GeneratorConfig`` and the service
+must rebuild and check it without torch. Every field has the paper's default
+where the paper gives one; ``extra="forbid"`` turns a typo in a config file or
+an override into an error instead of a silently ignored setting.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from model.codec import DepthEncoding
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class GeneratorConfig(_Strict):
+    """pix2pixHD global generator. The paper: 32 filters in the first layer."""
+
+    input_nc: int = 3
+    output_nc: int = 1
+    ngf: int = Field(32, ge=1, description="filters in the first layer")
+    n_downsample: int = Field(4, ge=0, le=6)
+    n_blocks: int = Field(9, ge=0)
+    dropout: float = Field(
+        0.0,
+        ge=0.0,
+        lt=1.0,
+        description="the paper's noise input Z, as pix2pix: dropout in the residual blocks, training only",
+    )
+
+    @property
+    def input_multiple(self) -> int:
+        """Input height and width must be multiples of this."""
+        return 2**self.n_downsample
+
+
+class DiscriminatorConfig(_Strict):
+    """Multi-scale PatchGAN: D1 at full resolution, D2 at half, and so on."""
+
+    ndf: int = Field(32, ge=1)
+    n_layers: int = Field(3, ge=1)
+    num_d: int = Field(2, ge=1)
+
+
+class LossConfig(_Strict):
+    """Formula (2) or LSGAN, plus mu times formula (3)'s feature matching."""
+
+    gan_mode: Literal["lsgan", "vanilla"] = Field(
+        "lsgan", description="lsgan (pix2pixHD default) or vanilla (formula (2), log-likelihood)"
+    )
+    feature_matching: float = Field(10.0, ge=0, description="mu in the paper")
+    l1_depth: float = Field(0.0, ge=0, description="beyond the paper, opt-in: masked L1 between encoded depths")
+
+
+class OptimConfig(_Strict):
+    """Adam as in the paper; optional pix2pixHD-style linear decay to zero."""
+
+    lr: float = Field(0.0002, gt=0)
+    beta1: float = 0.5
+    beta2: float = 0.999
+    decay_start: int | None = Field(None, ge=0, description="step where linear decay begins")
+    decay_steps: int = Field(0, ge=0, description="steps over which lr falls to zero")
+
+    def lr_at(self, step: int) -> float:
+        if self.decay_start is None or step < self.decay_start or self.decay_steps == 0:
+            return self.lr
+        return self.lr * max(0.0, 1.0 - (step - self.decay_start) / self.decay_steps)
+
+
+FORMATS = ("7scenes", "tum", "nyu", "csv")
+
+
+class DataSource(_Strict):
+    """One dataset on disk. ``root`` is a folder, or a file for nyu and csv."""
+
+    format: Literal["7scenes", "tum", "nyu", "csv"]
+    root: Path
+    frames: str | None = Field(None, description="7scenes: inclusive ranges, e.g. '0-799' or '0-9,20-29'")
+    split: Literal["train", "test", "all"] = Field("all", description="nyu: the official 795/654 split")
+    splits_file: Path | None = Field(None, description="nyu: splits.mat (default: beside the .mat)")
+    licence: str | None = Field(None, description="overrides the format's known licence")
+
+
+class TransformConfig(_Strict):
+    """Paired random transforms for training; one parameter draw moves RGB, depth and intrinsics."""
+
+    size: tuple[int, int] = Field((240, 320), description="training crop (height, width)")
+    scale: tuple[float, float] = Field((0.5, 0.6), description="resize factor range applied before cropping")
+    flip: bool = True
+    brightness: float = Field(0.2, ge=0)
+    contrast: float = Field(0.2, ge=0)
+    saturation: float = Field(0.2, ge=0)
+
+
+class DataConfig(_Strict):
+    train: list[DataSource]
+    val: list[DataSource] = []
+    val_scale: float = Field(0.5, gt=0, le=1, description="validation images are resized by this")
+    transform: TransformConfig = TransformConfig()
+    eval_min_m: float = Field(0.1, gt=0, description="metrics use ground truth in [eval_min_m, eval_max_m]")
+    eval_max_m: float = Field(10.0, gt=0)
+
+
+class LoopConfig(_Strict):
+    out_dir: Path = Path("runs/default")
+    steps: int = Field(1000, ge=1)
+    batch_size: int = Field(4, ge=1, description="per process")
+    num_workers: int = Field(2, ge=0)
+    seed: int = 0
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    amp: bool = Field(True, description="mixed precision on CUDA (ignored on CPU)")
+    log_every: int = Field(10, ge=1)
+    val_every: int = Field(500, ge=1)
+    checkpoint_every: int = Field(500, ge=1)
+    select_metric: Literal["rel", "rmse", "log10", "delta1"] = "rel"
+    threads: int | None = Field(None, ge=1, description="torch CPU threads per process")
+
+
+class RunConfig(_Strict):
+    """Everything that defines a training run; saved in checkpoints and cards."""
+
+    generator: GeneratorConfig = GeneratorConfig()
+    discriminator: DiscriminatorConfig = DiscriminatorConfig()
+    loss: LossConfig = LossConfig()
+    optim: OptimConfig = OptimConfig()
+    depth: DepthEncoding = DepthEncoding()
+    data: DataConfig
+    train: LoopConfig = LoopConfig()
+
+    @model_validator(mode="after")
+    def _crop_fits_grid(self) -> RunConfig:
+        m = self.generator.input_multiple
+        h, w = self.data.transform.size
+        if h % m or w % m:
+            raise ValueError(f"data.transform.size {h}x{w} must be a multiple of {m} (2^n_downsample)")
+        return self
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """``a.b.c=value`` -> (['a', 'b', 'c'], value parsed as YAML)."""
+    key, sep, raw = text.partition("=")
+    if not sep or not key:
+        raise ValueError(f"override {text!r} is not of the form section.key=value")
+    return key.split("."), yaml.safe_load(raw)
+
+
+def apply_overrides(tree: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
+    """Set dotted keys in a nested dict (a copy of it at each level we touch)."""
+    out = dict(tree)
+    for text in overrides:
+        path, value = parse_override(text)
+        node = out
+        for part in path[:-1]:
+            child = node.get(part)
+            node[part] = dict(child) if isinstance(child, dict) else {}
+            node = node[part]
+        node[path[-1]] = value
+    return out
+
+
+def load_config(path: Path | None, overrides: list[str] = ()) -> RunConfig:
+    """A YAML file plus overrides. Relative data paths resolve against the working directory."""
+    tree: dict[str, Any] = {}
+    if path is not None:
+        tree = yaml.safe_load(Path(path).read_text()) or {}
+    tree = apply_overrides(tree, list(overrides))
+    return RunConfig.model_validate(tree)

@@ -1,0 +1,121 @@
+"""Camera geometry shared by the trainer and the service. Torch-free on purpose.
+
+Everything here works on NumPy arrays so that the serving install (ONNX Runtime,
+no torch) and the trainer use the *same* back-projection and the same intrinsics
+bookkeeping. Conventions follow the paper's formula (5) and Open3D's vocabulary:
+
+    pz = d,  px = pz * (u - cx) / fx,  py = pz * (v - cy) / fy
+
+with (u, v) the pixel column and row, x right, y down, z forward, in metres.
+Pixel centres sit at integer coordinates, so a resize by ``s`` maps a
+coordinate ``c`` to ``(c + 0.5) * s - 0.5``; that keeps the principal point on
+the same physical ray, which plain ``c * s`` does not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics in pixels of an image of ``width`` x ``height``."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def resized(self, width: int, height: int) -> Intrinsics:
+        """The same camera after resizing its image to ``width`` x ``height``."""
+        sx = width / self.width
+        sy = height / self.height
+        return Intrinsics(
+            fx=self.fx * sx,
+            fy=self.fy * sy,
+            cx=(self.cx + 0.5) * sx - 0.5,
+            cy=(self.cy + 0.5) * sy - 0.5,
+            width=width,
+            height=height,
+        )
+
+    def cropped(self, left: int, top: int, width: int, height: int) -> Intrinsics:
+        """The camera seen through a ``width`` x ``height`` window at (left, top)."""
+        return Intrinsics(self.fx, self.fy, self.cx - left, self.cy - top, width, height)
+
+    def flipped(self) -> Intrinsics:
+        """The camera after mirroring its image left to right (cx mirrors)."""
+        return Intrinsics(self.fx, self.fy, self.width - 1 - self.cx, self.cy, self.width, self.height)
+
+    def as_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+
+#: The Kinect calibration the paper uses (TUM fr3 defaults), at 640x480.
+KINECT_DEFAULT = Intrinsics(fx=535.4, fy=539.2, cx=320.1, cy=247.6, width=640, height=480)
+
+
+def pixel_rays(intrinsics: Intrinsics) -> np.ndarray:
+    """Per-pixel ray directions with z = 1, shape (H, W, 3), float32."""
+    u = np.arange(intrinsics.width, dtype=np.float32)
+    v = np.arange(intrinsics.height, dtype=np.float32)
+    rays = np.empty((intrinsics.height, intrinsics.width, 3), dtype=np.float32)
+    rays[..., 0] = ((u - intrinsics.cx) / intrinsics.fx)[None, :]
+    rays[..., 1] = ((v - intrinsics.cy) / intrinsics.fy)[:, None]
+    rays[..., 2] = 1.0
+    return rays
+
+
+def backproject(depth: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """Formula (5) at every pixel: an (H, W, 3) float32 array of camera-frame points."""
+    if depth.shape != (intrinsics.height, intrinsics.width):
+        raise ValueError(
+            f"depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are for "
+            f"{intrinsics.width}x{intrinsics.height}"
+        )
+    return pixel_rays(intrinsics) * depth.astype(np.float32, copy=False)[..., None]
+
+
+def point_cloud(
+    depth: np.ndarray,
+    rgb: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    stride: int = 1,
+    min_depth: float = 0.0,
+    max_depth: float = float("inf"),
+) -> tuple[np.ndarray, np.ndarray]:
+    """Valid points and their colours: ((N, 3) float32 metres, (N, 3) uint8).
+
+    Pixels with no depth (0, NaN) or outside [min_depth, max_depth] are dropped;
+    ``stride`` keeps every stride-th row and column.
+    """
+    if stride < 1:
+        raise ValueError("stride must be >= 1")
+    points = backproject(depth, intrinsics)[::stride, ::stride]
+    d = depth[::stride, ::stride]
+    keep = np.isfinite(d) & (d > 0) & (d >= min_depth) & (d <= max_depth)
+    return points[keep], rgb[::stride, ::stride][keep]
+
+
+def grid_padding(height: int, width: int, multiple: int) -> tuple[int, int]:
+    """Rows and columns to add at the bottom and right to reach a multiple."""
+    return (-height) % multiple, (-width) % multiple
+
+
+def pad_to_multiple(image: np.ndarray, multiple: int) -> np.ndarray:
+    """Pad an (H, W, ...) array at the bottom and right to a multiple of ``multiple``.
+
+    Reflection keeps the border statistics the generator saw in training; an
+    image smaller than the pad falls back to repeating its edge.
+    """
+    pad_h, pad_w = grid_padding(image.shape[0], image.shape[1], multiple)
+    if pad_h == 0 and pad_w == 0:
+        return image
+    widths = [(0, pad_h), (0, pad_w)] + [(0, 0)] * (image.ndim - 2)
+    mode = "reflect" if pad_h < image.shape[0] and pad_w < image.shape[1] else "edge"
+    return np.pad(image, widths, mode=mode)
