@@ -1,0 +1,192 @@
+"""Export parity, the published card, and the registry's immutability."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from datetime import UTC, datetime
+
+import numpy as np
+import onnx
+import pytest
+from conftest import REPO, SEVEN_SCENES, TUM_FRAME, run_cli
+from PIL import Image
+
+from model.card import (
+    Camera,
+    CardError,
+    DataRef,
+    Metrics,
+    ModelCard,
+    Training,
+    list_versions,
+    load_card,
+    publish,
+    verify_files,
+)
+from model.checkpoint import load_generator
+from model.codec import INPUT_ENCODING, DepthEncoding
+from model.config import GeneratorConfig
+from model.export import ONNX_FILE, TORCHSCRIPT_FILE, check_parity, export_onnx, export_torchscript, parity_sizes
+from model.runtime import OnnxGenerator
+
+
+@pytest.fixture(scope="module")
+def evaluated(trained_checkpoint, tmp_path_factory):
+    out = tmp_path_factory.mktemp("eval")
+    result = run_cli(
+        "evaluate",
+        str(trained_checkpoint),
+        "--format",
+        "7scenes",
+        "--root",
+        str(SEVEN_SCENES),
+        "--frames",
+        "850-852",
+        "--out",
+        str(out),
+        "--samples",
+        "2",
+    )
+    return out, result.stdout
+
+
+def test_evaluate_prints_the_paper_table_and_writes_reports(evaluated):
+    out, stdout = evaluated
+    assert "| paper (TUM, Table 2) | 0.107 | 0.548 | 0.047 | 0.942 | 0.984 | 0.990 | 0.420 |" in stdout
+    report = json.loads((out / "metrics.json").read_text())
+    assert report["split"] == "7scenes-redkitchen 850-852"
+    assert report["metrics"]["images"] == 3 and len(report["per_image"]) == 3
+    assert 0 < report["metrics"]["delta1"] <= report["metrics"]["delta2"] <= report["metrics"]["delta3"] <= 1
+    for name in ("metrics.md", "pc_rmse_curve.png", "samples.png"):
+        assert (out / name).stat().st_size > 0
+    with Image.open(out / "samples.png") as im:
+        assert im.size == (3 * 640, 2 * 480)  # RGB | predicted | truth, full resolution
+
+
+def test_parity_at_two_sizes_one_off_grid(trained_checkpoint, tmp_path):
+    generator, config, _ = load_generator(trained_checkpoint)
+    export_onnx(generator, tmp_path / ONNX_FILE)
+    export_torchscript(generator, tmp_path / TORCHSCRIPT_FILE)
+    model = onnx.load(str(tmp_path / ONNX_FILE))
+    assert not any(t.data_location == onnx.TensorProto.EXTERNAL for t in model.graph.initializer)  # one file
+    image = np.asarray(Image.open(TUM_FRAME / "TUM_color.png").convert("RGB"))
+    report = check_parity(generator, tmp_path, image)
+    assert len(report) == 4 and max(report.values()) <= 1e-4
+    sizes = parity_sizes(480, 640, config.generator.input_multiple)
+    assert any(h % 4 or w % 4 for h, w in sizes)
+    runner = OnnxGenerator(tmp_path / ONNX_FILE, config.generator.input_multiple)
+    assert runner.predict_raw(image[: 481 - 4, : 641 - 6]).shape == (477, 635)
+
+
+def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_checkpoint, evaluated, tmp_path):
+    out, _ = evaluated
+    args = [
+        "export",
+        str(trained_checkpoint),
+        "--name",
+        "tiny",
+        "--version",
+        "0.1.0",
+        "--metrics",
+        str(out / "metrics.json"),
+        "--parity-image",
+        str(TUM_FRAME / "TUM_color.png"),
+        "--registry",
+        str(tmp_path / "registry"),
+    ]
+    stdout = run_cli(*args).stdout
+    assert "parity onnx@" in stdout and "published" in stdout
+    folder = tmp_path / "registry" / "tiny" / "0.1.0"
+    card = load_card(folder)
+    verify_files(folder, card)
+    assert set(card.files) == {ONNX_FILE, TORCHSCRIPT_FILE}
+    assert card.generator.ngf == 8 and card.input_multiple == 4
+    assert card.depth_encoding.kind == "log"
+    assert (card.camera.fx, card.camera.cx, card.camera.width) == (585.0, 320.0, 640)
+    assert "non-commercial" in card.training.data[0].licence and card.training.data[0].frames == "0-3"
+    assert card.metrics[0].split == "7scenes-redkitchen 850-852"
+    assert card.training.steps == 6 and card.training.hardware
+    assert card.trainer_commit
+    assert max(card.parity.values()) <= 1e-4
+
+    again = subprocess.run([sys.executable, "-m", "model", *args], cwd=REPO, capture_output=True, text=True)
+    assert again.returncode != 0 and "already exists" in again.stderr
+    assert load_card(folder) == card  # untouched
+
+
+def _card(version: str) -> ModelCard:
+    return ModelCard(
+        name="tiny",
+        version=version,
+        created=datetime.now(UTC),
+        files={},
+        generator=GeneratorConfig(),
+        input_multiple=16,
+        input_encoding=INPUT_ENCODING,
+        depth_encoding=DepthEncoding(),
+        camera=Camera(fx=585, fy=585, cx=320, cy=240, width=640, height=480),
+        training=Training(
+            data=[DataRef(name="x", format="7scenes", frames="0-1", licence="MIT")],
+            steps=1,
+            duration_s=1.0,
+            hardware="cpu",
+            config={},
+        ),
+        metrics=[
+            Metrics(
+                split="x 2-3",
+                images=2,
+                depth_range_m=(0.1, 10.0),
+                rel=0.1,
+                rmse=0.1,
+                log10=0.1,
+                delta1=0.9,
+                delta2=0.95,
+                delta3=0.99,
+                pc_rmse_mean=0.2,
+            )
+        ],
+        trainer_commit="abc",
+    )
+
+
+def test_registry_verifies_orders_versions_and_never_overwrites(tmp_path):
+    payload = tmp_path / "weights.bin"
+    payload.write_bytes(b"generator bytes")
+    folder = publish(tmp_path / "reg", _card("1.0.0"), {"weights.bin": payload})
+    card = load_card(folder)
+    verify_files(folder, card)
+    (folder / "weights.bin").write_bytes(b"tampered")
+    with pytest.raises(CardError, match=r"weights\.bin: sha256"):
+        verify_files(folder, card)
+    (folder / "weights.bin").unlink()
+    with pytest.raises(CardError, match=r"weights\.bin: listed in the card but missing"):
+        verify_files(folder, card)
+    publish(tmp_path / "reg", _card("1.10.0"), {"weights.bin": payload})
+    publish(tmp_path / "reg", _card("1.2.0-rc.1"), {"weights.bin": payload})
+    assert list_versions(tmp_path / "reg", "tiny") == ["1.0.0", "1.2.0-rc.1", "1.10.0"]
+    with pytest.raises(FileExistsError):
+        publish(tmp_path / "reg", _card("1.0.0"), {"weights.bin": payload})
+    with pytest.raises(ValueError, match="semantic version"):
+        _card("v1")
+
+
+def test_onnx_path_and_shared_modules_import_no_torch(trained_checkpoint, tmp_path):
+    """What the service needs (geometry, codec, card, runtime on ONNX) works without torch."""
+    generator, config, _ = load_generator(trained_checkpoint)
+    export_onnx(generator, tmp_path / ONNX_FILE)
+    code = f"""
+import sys
+import numpy as np
+from model import card, codec, config, geometry, metrics, runtime
+g = runtime.OnnxGenerator({str(tmp_path / ONNX_FILE)!r}, {config.generator.input_multiple})
+y = g.predict_raw(np.zeros((30, 41, 3), np.uint8))
+assert y.shape == (30, 41), y.shape
+depth = codec.DepthEncoding().decode(y)
+assert "torch" not in sys.modules, "torch was imported"
+print("ok")
+"""
+    result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)
+    assert result.returncode == 0 and result.stdout.strip() == "ok", result.stderr

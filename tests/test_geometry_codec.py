@@ -1,0 +1,100 @@
+"""Formula (5), intrinsics bookkeeping, padding, the depth encoding and paired transforms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from model.codec import DepthEncoding, rgb_to_input
+from model.config import TransformConfig
+from model.data.frames import Frame
+from model.data.transforms import TransformParams, apply_params, sample_params
+from model.geometry import KINECT_DEFAULT, Intrinsics, backproject, pad_to_multiple, point_cloud
+
+
+def test_backproject_is_formula_5():
+    k = KINECT_DEFAULT
+    depth = np.full((k.height, k.width), 2.0, dtype=np.float32)
+    points = backproject(depth, k)
+    u, v = 100, 400
+    np.testing.assert_allclose(points[v, u], [2.0 * (u - 320.1) / 535.4, 2.0 * (v - 247.6) / 539.2, 2.0], rtol=1e-6)
+
+
+def test_point_cloud_drops_invalid_and_clips():
+    k = Intrinsics(10, 10, 1.5, 1.5, 4, 4)
+    depth = np.array([[0, 1, 2, 3], [4, 5, np.nan, 7], [1, 1, 1, 1], [1, 1, 1, 1]], dtype=np.float32)
+    rgb = np.arange(48, dtype=np.uint8).reshape(4, 4, 3)
+    points, colours = point_cloud(depth, rgb, k, min_depth=1.5, max_depth=5)
+    np.testing.assert_allclose(sorted(points[:, 2]), [2, 3, 4, 5])
+    assert colours.dtype == np.uint8 and len(colours) == 4
+    points, _ = point_cloud(depth, rgb, k, stride=2)
+    assert len(points) == 3  # (0,0) is missing; (0,2), (2,0), (2,2) remain
+
+
+def test_resize_keeps_rays():
+    """A pixel centre and its image after a 2x resize see the same ray."""
+    k = Intrinsics(500, 500, 319.5, 239.5, 640, 480)
+    r = k.resized(1280, 960)
+    u = 100.0
+    u2 = (u + 0.5) * 2 - 0.5
+    assert (u2 - r.cx) / r.fx == pytest.approx((u - k.cx) / k.fx)
+    assert (r.fx, r.fy) == (1000, 1000)
+
+
+def test_paired_crop_and_flip_keep_rgb_depth_and_rays_aligned():
+    h, w = 48, 64
+    k = Intrinsics(60.0, 62.0, 30.2, 22.7, w, h)
+    uu, vv = np.meshgrid(np.arange(w), np.arange(h))
+    rgb = np.stack([uu, vv, np.zeros_like(uu)], -1).astype(np.uint8)  # each pixel knows where it was
+    depth = (1.0 + uu / 100 + vv / 1000).astype(np.float32)
+    frame = Frame(rgb, depth, k, "grid")
+    params = TransformParams(resize=(h, w), crop=(5, 9, 32, 40), flip=True, brightness=1, contrast=1, saturation=1)
+    out = apply_params(frame, params)
+    assert out.rgb.shape == (32, 40, 3) and out.depth.shape == (32, 40)
+    for v2, u2 in [(0, 0), (31, 39), (10, 17)]:
+        u, v = int(out.rgb[v2, u2, 0]), int(out.rgb[v2, u2, 1])
+        assert out.depth[v2, u2] == depth[v, u]  # depth moved with the RGB
+        ray_before = ((u - k.cx) / k.fx, (v - k.cy) / k.fy)
+        ray_after = ((u2 - out.intrinsics.cx) / out.intrinsics.fx, (v2 - out.intrinsics.cy) / out.intrinsics.fy)
+        assert ray_after[0] == pytest.approx(-ray_before[0])  # a flip mirrors the scene
+        assert ray_after[1] == pytest.approx(ray_before[1])
+
+
+def test_sampled_params_cover_the_crop_and_jitter_only_rgb():
+    config = TransformConfig(size=(96, 128), scale=(0.1, 0.2))
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        p = sample_params(rng, config, 480, 640)
+        top, left, ch, cw = p.crop
+        assert (ch, cw) == (96, 128)
+        assert top + ch <= p.resize[0] and left + cw <= p.resize[1]
+    frame = Frame(np.full((480, 640, 3), 100, np.uint8), np.full((480, 640), 2.0, np.float32), KINECT_DEFAULT, "f")
+    out = apply_params(frame, sample_params(np.random.default_rng(1), TransformConfig(brightness=0.5), 480, 640))
+    np.testing.assert_allclose(out.depth, 2.0)  # nearest-neighbour depth, untouched by colour jitter
+    assert out.intrinsics.width == 320 and out.intrinsics.height == 240
+
+
+def test_pad_to_multiple():
+    img = np.arange(5 * 7 * 3).reshape(5, 7, 3)
+    padded = pad_to_multiple(img, 4)
+    assert padded.shape == (8, 8, 3)
+    np.testing.assert_array_equal(padded[:5, :7], img)
+    assert pad_to_multiple(np.zeros((2, 2, 3)), 16).shape == (16, 16, 3)  # smaller than the pad: edge mode
+
+
+@pytest.mark.parametrize("kind", ["log", "linear"])
+def test_depth_encoding_round_trip(kind):
+    enc = DepthEncoding(kind=kind, min_m=0.25, max_m=10.0)
+    d = np.array([0.25, 0.8, 1.81, 3.98, 10.0], dtype=np.float32)
+    y = enc.encode(d)
+    assert y.min() == pytest.approx(-1) and y.max() == pytest.approx(1)
+    np.testing.assert_allclose(enc.decode(y), d, rtol=1e-5)
+    np.testing.assert_allclose(enc.decode(np.array([-5.0, 5.0])), [0.25, 10.0])  # clipped to the range
+    with pytest.raises(ValueError):
+        DepthEncoding(min_m=5, max_m=1)
+
+
+def test_rgb_to_input_range_and_layout():
+    x = rgb_to_input(np.array([[[0, 255, 127]]], dtype=np.uint8))
+    assert x.shape == (1, 3, 1, 1) and x.dtype == np.float32
+    np.testing.assert_allclose(x.ravel(), [-1.0, 1.0, 127 / 127.5 - 1], rtol=1e-6)

@@ -1,0 +1,99 @@
+"""Network shapes at odd sizes, the objective's terms, and hole masking."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from model.config import DiscriminatorConfig, GeneratorConfig
+from model.losses import GANLoss, feature_matching, fill_holes, masked_l1, patch_weights
+from model.networks import GlobalGenerator, MultiscaleDiscriminator
+
+
+def test_paper_defaults():
+    g, d = GeneratorConfig(), DiscriminatorConfig()
+    assert (g.ngf, d.ndf, d.num_d, d.n_layers) == (32, 32, 2, 3)
+
+
+@pytest.mark.parametrize("n_downsample,size", [(2, (36, 52)), (3, (24, 40)), (4, (48, 80))])
+def test_generator_keeps_grid_sizes(n_downsample, size):
+    g = GlobalGenerator(GeneratorConfig(ngf=4, n_downsample=n_downsample, n_blocks=1))
+    y = g(torch.randn(2, 3, *size))
+    assert y.shape == (2, 1, *size)
+    assert y.abs().max() <= 1.0  # tanh
+
+
+def test_generator_layout_follows_the_paper():
+    g = GlobalGenerator(GeneratorConfig(ngf=4, n_downsample=2, n_blocks=3))
+    layers = list(g.model)
+    assert isinstance(layers[0], torch.nn.ReflectionPad2d) and layers[1].kernel_size == (7, 7)
+    assert sum(isinstance(m, torch.nn.ConvTranspose2d) for m in layers) == 2
+    assert sum(type(m).__name__ == "ResnetBlock" for m in layers) == 3
+    assert isinstance(layers[-1], torch.nn.Tanh) and layers[-2].kernel_size == (7, 7)
+    assert all(not m.affine for m in g.modules() if isinstance(m, torch.nn.InstanceNorm2d))
+
+
+def test_noise_z_is_dropout_in_training_only():
+    torch.manual_seed(0)
+    g = GlobalGenerator(GeneratorConfig(ngf=4, n_downsample=1, n_blocks=2, dropout=0.5))
+    x = torch.randn(1, 3, 16, 16)
+    g.train()
+    assert not torch.equal(g(x), g(x))
+    g.eval()
+    assert torch.equal(g(x), g(x))
+
+
+@pytest.mark.parametrize("size", [(37, 53), (64, 48)])
+def test_multiscale_discriminator_shapes(size):
+    d = MultiscaleDiscriminator(DiscriminatorConfig(ndf=4), input_nc=4)
+    outputs = d(torch.randn(2, 4, *size))
+    assert len(outputs) == 2  # D1 full resolution, D2 half
+    for scale in outputs:
+        assert len(scale) == 3 + 2  # n_layers convs + the stride-1 conv + the logits
+        assert scale[-1].shape[1] == 1
+    h1, w1 = outputs[0][-1].shape[-2:]
+    h2, w2 = outputs[1][-1].shape[-2:]
+    assert h2 < h1 and w2 < w1
+    # D2 sees exactly the count_include_pad=False average pool of the input.
+    x = torch.ones(1, 4, *size)
+    pooled = torch.nn.functional.avg_pool2d(x, 3, 2, 1, count_include_pad=False)
+    assert torch.allclose(pooled, torch.ones_like(pooled))
+
+
+def _fake_outputs(value: float, num_d: int = 2, n_layers: int = 3) -> list[list[torch.Tensor]]:
+    return [[torch.full((1, 2, 5, 5), value) for _ in range(n_layers + 2)] for _ in range(num_d)]
+
+
+def test_gan_losses_hand_computed():
+    out = [[torch.zeros(1, 1, 3, 3)], [torch.zeros(1, 1, 2, 2)]]
+    assert GANLoss("lsgan")(out, True).item() == pytest.approx(2 * 1.0)
+    assert GANLoss("lsgan")(out, False).item() == pytest.approx(0.0)
+    assert GANLoss("vanilla")(out, True).item() == pytest.approx(2 * math.log(2))
+
+
+def test_feature_matching_zero_when_fake_equals_real():
+    d = MultiscaleDiscriminator(DiscriminatorConfig(ndf=4), input_nc=4)
+    x = torch.randn(1, 4, 32, 32)
+    assert feature_matching(d(x), d(x)).item() == 0.0
+
+
+def test_feature_matching_weights_match_pix2pixhd():
+    # Constant difference c: 2 scales x 4 layers x (4 / (3 + 1)) x (1 / 2) x c = 4c.
+    assert feature_matching(_fake_outputs(0.75), _fake_outputs(0.5)).item() == pytest.approx(4 * 0.25)
+
+
+def test_holes_carry_no_signal():
+    real = torch.tensor([[[[0.5, -1.0], [0.2, -1.0]]]])
+    fake = torch.full_like(real, 0.9)
+    valid = torch.tensor([[[[1.0, 0.0], [1.0, 0.0]]]])
+    filled = fill_holes(real, fake, valid)
+    assert torch.equal(filled, torch.tensor([[[[0.5, 0.9], [0.2, 0.9]]]]))
+    assert masked_l1(fake, real, valid).item() == pytest.approx((0.4 + 0.7) / 2)
+    # A frame with no valid depth contributes nothing to D's "real" loss or to feature matching.
+    d = MultiscaleDiscriminator(DiscriminatorConfig(ndf=4), input_nc=4)
+    outputs = d(torch.randn(1, 4, 32, 32))
+    weights = patch_weights(torch.zeros(1, 1, 32, 32), outputs)
+    assert GANLoss("lsgan")(outputs, True, weights).item() == 0.0
+    assert feature_matching(outputs, d(torch.randn(1, 4, 32, 32)), weights).item() == 0.0
