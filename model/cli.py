@@ -37,6 +37,7 @@ def evaluate(
     root: Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)],
     frames: Annotated[str | None, typer.Option(help="7scenes frame ranges, e.g. 850-999")] = None,
     split: Annotated[str, typer.Option(help="nyu: train | test | all")] = "all",
+    splits_file: Annotated[Path | None, typer.Option(help="nyu: splits.mat (default: beside the .mat)")] = None,
     out: Annotated[Path, typer.Option(help="folder for metrics.json, metrics.md and plots")] = Path("runs/eval"),
     min_depth: Annotated[float, typer.Option(help="valid ground truth from (m)")] = 0.1,
     max_depth: Annotated[float, typer.Option(help="valid ground truth up to (m)")] = 10.0,
@@ -49,7 +50,7 @@ def evaluate(
     from model.evaluate import evaluate_frames, write_report
 
     generator, config, state = load_generator(checkpoint)
-    source = DataSource(format=format, root=root, frames=frames, split=split)
+    source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file)
     result, per_image, grid = evaluate_frames(
         generator,
         config.depth,
