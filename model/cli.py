@@ -90,5 +90,46 @@ def export(
     typer.echo(f"published {target}")
 
 
+@app.command()
+def baselines(
+    format: Annotated[str, typer.Option(help="7scenes | tum | nyu | csv")],
+    root: Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)],
+    train_frames: Annotated[str, typer.Option(help="frames the baselines are fitted on, e.g. 0-799")],
+    test_frames: Annotated[str, typer.Option(help="frames they are scored on, e.g. 850-999")],
+    out: Annotated[Path | None, typer.Option(help="also write baselines.json here")] = None,
+    min_depth: Annotated[float, typer.Option(help="valid ground truth from (m)")] = 0.1,
+    max_depth: Annotated[float, typer.Option(help="valid ground truth up to (m)")] = 10.0,
+) -> None:
+    """Score the image-free baselines (train median; per-pixel train median) on a test split."""
+    import json
+
+    from model.baselines import fit_baselines, score_baselines
+    from model.config import DataSource
+    from model.data.sources import describe, open_source
+    from model.evaluate import PAPER_TUM, markdown_table
+
+    train_source = DataSource(format=format, root=root, frames=train_frames)
+    test_source = DataSource(format=format, root=root, frames=test_frames)
+    fitted = fit_baselines(open_source(train_source))
+    results = score_baselines(fitted, open_source(test_source), min_depth, max_depth)
+    rows = {
+        f"constant {fitted['constant']:.2f} m (train median)": results["constant"],
+        "per-pixel train median": results["per_pixel"],
+        "paper (TUM, Table 2)": PAPER_TUM,
+    }
+    typer.echo(f"fitted on {describe(train_source)}, scored on {describe(test_source)}\n")
+    typer.echo(markdown_table(rows))
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        payload = {
+            "train": describe(train_source),
+            "test": describe(test_source),
+            "constant_m": fitted["constant"],
+            "depth_range_m": [min_depth, max_depth],
+            "metrics": results,
+        }
+        (out / "baselines.json").write_text(json.dumps(payload, indent=2) + "\n")
+
+
 def main() -> None:
     app()

@@ -48,9 +48,9 @@ def evaluate_frames(
     samples: int = 0,
     progress: bool = False,
 ) -> tuple[dict, list[dict], list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-    """Predict every frame (resized by ``scale``) and pool the metrics.
+    """Predict every frame (resized by ``scale``) and average the per-image metrics.
 
-    Returns (pooled result, per-image rows, up to ``samples`` evenly spaced
+    Returns (the table row, per-image rows, up to ``samples`` evenly spaced
     (rgb, prediction, ground truth) triples for a sample grid).
     """
     was_training = generator.training
@@ -107,7 +107,7 @@ def write_report(
     payload = {
         "split": split,
         "depth_range_m": list(depth_range),
-        "pooling": "all valid pixels of the split (formulas (6)-(10)); no median scaling",
+        "averaging": "per image over its valid pixels, then the mean over images; no median scaling",
         "metrics": result,
         "beats_paper": beats(result, PAPER_TUM),
         "per_image": per_image,

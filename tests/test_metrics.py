@@ -26,12 +26,13 @@ def test_formulas_6_to_10_hand_computed():
     assert m["pixels"] == 3
 
 
-def test_pooled_over_all_pixels_not_averaged_per_image():
+def test_averaged_per_image_not_pooled_over_pixels():
     k1, k2 = Intrinsics(1, 1, 0, 0, 1, 1), Intrinsics(1, 1, 0, 0, 3, 1)
     acc = MetricAccumulator()
     acc.add(np.array([[2.0]]), np.array([[1.0]]), k1)  # REL 1
     acc.add(np.array([[1.0, 1.0, 1.0]]), np.array([[1.0, 1.0, 1.0]]), k2)  # REL 0
-    assert acc.result()["rel"] == pytest.approx(1 / 4)  # not (1 + 0) / 2
+    assert acc.result()["rel"] == pytest.approx((1 + 0) / 2)  # not 1 / 4 pixels
+    assert acc.result()["images"] == 2 and acc.result()["pixels"] == 4
 
 
 def test_point_cloud_rmse_is_3d_distance_at_the_same_pixels():
