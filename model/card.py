@@ -26,6 +26,8 @@ from model.codec import DepthEncoding
 from model.config import GeneratorConfig
 
 CARD_FILE = "card.json"
+ONNX_FILE = "generator.onnx"
+TORCHSCRIPT_FILE = "generator.torchscript.pt"
 SEMVER = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)(?:-([0-9A-Za-z.-]+))?$")
 NAME = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
 

@@ -32,7 +32,7 @@ def train(
 
 @app.command()
 def evaluate(
-    checkpoint: Annotated[Path, typer.Argument(help="a training checkpoint (.pt)", exists=True, dir_okay=False)],
+    model: Annotated[Path, typer.Argument(help="a checkpoint (.pt) or a published version folder", exists=True)],
     format: Annotated[str, typer.Option(help="7scenes | tum | nyu | csv")],
     root: Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)],
     frames: Annotated[str | None, typer.Option(help="7scenes frame ranges, e.g. 850-999")] = None,
@@ -43,24 +43,16 @@ def evaluate(
     max_depth: Annotated[float, typer.Option(help="valid ground truth up to (m)")] = 10.0,
     samples: Annotated[int, typer.Option(help="rows in samples.png")] = 4,
 ) -> None:
-    """Score a checkpoint with the paper's metrics and print the paper's table."""
-    from model.checkpoint import load_generator
+    """Score a model with the paper's metrics and print the paper's table."""
     from model.config import DataSource
     from model.data.sources import describe, open_source
-    from model.evaluate import evaluate_frames, write_report
+    from model.evaluate import evaluate_frames, load_predictor, write_report
 
-    generator, config, state = load_generator(checkpoint)
+    predict, label = load_predictor(model)
     source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file)
     result, per_image, grid = evaluate_frames(
-        generator,
-        config.depth,
-        open_source(source),
-        min_m=min_depth,
-        max_m=max_depth,
-        samples=samples,
-        progress=True,
+        predict, open_source(source), min_m=min_depth, max_m=max_depth, samples=samples, progress=True
     )
-    label = f"rgb2cloud ({checkpoint.name}, step {state['step']})"
     table = write_report(
         out, result, per_image, grid, split=describe(source), label=label, depth_range=(min_depth, max_depth)
     )

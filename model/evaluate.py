@@ -8,18 +8,19 @@ Figure-8 curve ``pc_rmse_curve.png`` and ``samples.png`` (RGB | predicted | trut
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from model.codec import DepthEncoding
+from model.card import ONNX_FILE, load_card, verify_files
+from model.checkpoint import load_generator
 from model.data.frames import Frame
 from model.data.transforms import resize_frame
 from model.inference import predict_depth
 from model.metrics import METRIC_NAMES, MetricAccumulator
-from model.networks import GlobalGenerator
+from model.runtime import OnnxGenerator
 from model.visualize import plot_pc_curve, sample_grid
 
 #: The reference paper's Table 2 (TUM RGB-D) and its mean point-cloud RMSE on TUM.
@@ -38,8 +39,7 @@ LOWER_IS_BETTER = {"rel", "rmse", "log10", "pc_rmse_mean"}
 
 
 def evaluate_frames(
-    generator: GlobalGenerator,
-    encoding: DepthEncoding,
+    predict: Callable[[np.ndarray], np.ndarray],
     frames: Sequence[Frame],
     *,
     min_m: float,
@@ -50,11 +50,10 @@ def evaluate_frames(
 ) -> tuple[dict, list[dict], list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
     """Predict every frame (resized by ``scale``) and average the per-image metrics.
 
-    Returns (the table row, per-image rows, up to ``samples`` evenly spaced
-    (rgb, prediction, ground truth) triples for a sample grid).
+    ``predict`` maps an HxWx3 uint8 image to HxW metres. Returns (the table row,
+    per-image rows, up to ``samples`` evenly spaced (rgb, prediction, ground
+    truth) triples for a sample grid).
     """
-    was_training = generator.training
-    generator.eval()
     acc = MetricAccumulator(min_m=min_m, max_m=max_m)
     per_image, grid = [], []
     keep = set(np.linspace(0, len(frames) - 1, samples).round().astype(int)) if samples else set()
@@ -63,14 +62,29 @@ def evaluate_frames(
         if scale != 1.0:
             h, w = frame.depth.shape
             frame = resize_frame(frame, round(h * scale), round(w * scale))
-        pred = predict_depth(generator, frame.rgb, encoding)
+        pred = predict(frame.rgb)
         row = acc.add(pred, frame.depth, frame.intrinsics, frame.name)
         if row:
             per_image.append({"name": frame.name, **row})
         if i in keep:
             grid.append((frame.rgb, pred, frame.depth))
-    generator.train(was_training)
     return acc.result(), per_image, grid
+
+
+def load_predictor(path: Path) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
+    """A depth predictor and a label from a checkpoint (.pt) or a published version folder.
+
+    A version folder is checked against its card (sha256) and run the way the
+    service runs it: ONNX Runtime, then the card's depth encoding.
+    """
+    path = Path(path)
+    if path.is_dir():
+        card = load_card(path)
+        verify_files(path, card)
+        runner = OnnxGenerator(path / ONNX_FILE, card.input_multiple)
+        return (lambda rgb: card.depth_encoding.decode(runner.predict_raw(rgb))), f"{card.name} {card.version} (ONNX)"
+    generator, config, state = load_generator(path)
+    return (lambda rgb: predict_depth(generator, rgb, config.depth)), f"rgb2cloud ({path.name}, step {state['step']})"
 
 
 def _fmt(value: float | None) -> str:

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from model.card import Camera, DataRef, Metrics, ModelCard, Training, publish
+from model.card import ONNX_FILE, TORCHSCRIPT_FILE, Camera, DataRef, Metrics, ModelCard, Training, publish
 from model.checkpoint import load_generator
 from model.codec import INPUT_ENCODING
 from model.data.sources import describe, open_source
@@ -29,8 +29,6 @@ from model.inference import predict_raw
 from model.networks import GlobalGenerator
 from model.runtime import OnnxGenerator, TorchScriptGenerator
 
-ONNX_FILE = "generator.onnx"
-TORCHSCRIPT_FILE = "generator.torchscript.pt"
 PARITY_TOLERANCE = 1e-4
 OPSET = 18
 

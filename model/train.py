@@ -37,6 +37,7 @@ from model.config import RunConfig
 from model.data.dataset import ConcatFrames, StepBatchSampler, TrainingSet
 from model.data.sources import open_source
 from model.evaluate import evaluate_frames
+from model.inference import predict_depth
 from model.losses import GANLoss, feature_matching, fill_holes, masked_l1, patch_weights
 from model.networks import GlobalGenerator, MultiscaleDiscriminator
 from model.visualize import sample_grid
@@ -210,15 +211,16 @@ def train(config: RunConfig, resume: bool = False) -> dict:
         nonlocal best
         if val_frames is None:
             return None
+        net = _unwrap(generator).eval()
         result, _, grid = evaluate_frames(
-            _unwrap(generator),
-            config.depth,
+            lambda rgb: predict_depth(net, rgb, config.depth),
             val_frames,
             min_m=config.data.eval_min_m,
             max_m=config.data.eval_max_m,
             scale=config.data.val_scale,
             samples=4,
         )
+        net.train()
         for key in ("rel", "rmse", "log10", "delta1", "delta2", "delta3", "pc_rmse_mean"):
             writer.add_scalar(f"val/{key}", result[key], step)
         (out / "samples").mkdir(exist_ok=True)

@@ -14,6 +14,8 @@ from conftest import REPO, SEVEN_SCENES, TUM_FRAME, run_cli
 from PIL import Image
 
 from model.card import (
+    ONNX_FILE,
+    TORCHSCRIPT_FILE,
     Camera,
     CardError,
     DataRef,
@@ -28,7 +30,7 @@ from model.card import (
 from model.checkpoint import load_generator
 from model.codec import INPUT_ENCODING, DepthEncoding
 from model.config import GeneratorConfig
-from model.export import ONNX_FILE, TORCHSCRIPT_FILE, check_parity, export_onnx, export_torchscript, parity_sizes
+from model.export import check_parity, export_onnx, export_torchscript, parity_sizes
 from model.runtime import OnnxGenerator
 
 
@@ -110,6 +112,25 @@ def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_check
     assert card.training.steps == 6 and card.training.hardware
     assert card.trainer_commit
     assert max(card.parity.values()) <= 1e-4
+
+    # The published version scores as its checkpoint does, through ONNX Runtime.
+    stdout = run_cli(
+        "evaluate",
+        str(folder),
+        "--format",
+        "7scenes",
+        "--root",
+        str(SEVEN_SCENES),
+        "--frames",
+        "850-852",
+        "--out",
+        str(tmp_path / "eval-onnx"),
+    ).stdout
+    assert "| tiny 0.1.0 (ONNX) |" in stdout
+    onnx_metrics = json.loads((tmp_path / "eval-onnx" / "metrics.json").read_text())["metrics"]
+    eager_metrics = json.loads((out / "metrics.json").read_text())["metrics"]
+    for key in ("rel", "rmse", "delta1", "pc_rmse_mean"):
+        assert abs(onnx_metrics[key] - eager_metrics[key]) < 1e-4
 
     again = subprocess.run([sys.executable, "-m", "model", *args], cwd=REPO, capture_output=True, text=True)
     assert again.returncode != 0 and "already exists" in again.stderr
