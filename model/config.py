@@ -41,6 +41,25 @@ class GeneratorConfig(_Strict):
         """Input height and width must be multiples of this."""
         return 2**self.n_downsample
 
+    def weight_shapes(self) -> list[tuple[int, ...]]:
+        """Every convolution's weight shape, in network order, without building the network.
+
+        Lets a torch-free loader check that exported weights match this config;
+        ``tests/test_networks_losses.py`` keeps it equal to ``GlobalGenerator``'s.
+        """
+        ngf = self.ngf
+        shapes = [(ngf, self.input_nc, 7, 7)]
+        shapes += [(ngf * 2 ** (i + 1), ngf * 2**i, 3, 3) for i in range(self.n_downsample)]
+        c = ngf * 2**self.n_downsample
+        shapes += [(c, c, 3, 3)] * (2 * self.n_blocks)
+        # ConvTranspose2d weights are (in, out, k, k).
+        shapes += [
+            (ngf * 2 ** (self.n_downsample - i), ngf * 2 ** (self.n_downsample - i - 1), 3, 3)
+            for i in range(self.n_downsample)
+        ]
+        shapes.append((self.output_nc, ngf, 7, 7))
+        return shapes
+
 
 class DiscriminatorConfig(_Strict):
     """Multi-scale PatchGAN: D1 at full resolution, D2 at half, and so on."""

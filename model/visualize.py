@@ -1,4 +1,4 @@
-"""Pictures for people: colour-mapped depth, sample grids, the Figure-8 curve."""
+"""Pictures for people: sample grids and the Figure-8 curve (colours from ``model.colormap``)."""
 
 from __future__ import annotations
 
@@ -11,15 +11,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 from PIL import Image
 
+from model.colormap import colorize
 from model.metrics import pc_rmse_curve
-
-
-def colorize(depth: np.ndarray, vmin: float, vmax: float) -> np.ndarray:
-    """Depth -> HxWx3 uint8 with the 'turbo' map; missing depth (<= 0) is black."""
-    t = np.clip((depth - vmin) / max(vmax - vmin, 1e-6), 0.0, 1.0)
-    rgb = (matplotlib.colormaps["turbo"](t)[..., :3] * 255).astype(np.uint8)
-    rgb[~(depth > 0)] = 0
-    return rgb
 
 
 def sample_grid(rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> Image.Image:

@@ -35,6 +35,13 @@ def test_generator_layout_follows_the_paper():
     assert all(not m.affine for m in g.modules() if isinstance(m, torch.nn.InstanceNorm2d))
 
 
+@pytest.mark.parametrize("config", [GeneratorConfig(), GeneratorConfig(ngf=16, n_downsample=3, n_blocks=9)])
+def test_weight_shapes_match_the_network(config):
+    g = GlobalGenerator(config)
+    actual = [tuple(m.weight.shape) for m in g.modules() if isinstance(m, torch.nn.Conv2d | torch.nn.ConvTranspose2d)]
+    assert actual == config.weight_shapes()
+
+
 def test_noise_z_is_dropout_in_training_only():
     torch.manual_seed(0)
     g = GlobalGenerator(GeneratorConfig(ngf=4, n_downsample=1, n_blocks=2, dropout=0.5))

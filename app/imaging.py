@@ -1,0 +1,91 @@
+"""Uploads to RGB arrays, and depth to PNG: the service's image edges.
+
+Decoding is defensive: the pixel count is checked from the header before any
+pixel is decoded, truncated files are errors (never silently grey), EXIF
+orientation is applied, and every Pillow mode becomes RGB uint8.
+"""
+
+from __future__ import annotations
+
+import io
+import warnings
+
+import numpy as np
+from PIL import Image, ImageOps, UnidentifiedImageError
+
+from model.colormap import colorize
+
+READABLE = "JPEG, PNG, WebP, TIFF, BMP, GIF"
+#: Depth PNGs are written with light compression: it is most of the encode time.
+PNG_COMPRESS_LEVEL = 1
+
+
+class BadImage(Exception):
+    """An upload we refuse, with the HTTP status and a message for the client."""
+
+    def __init__(self, status: int, message: str):
+        super().__init__(message)
+        self.status = status
+        self.message = message
+
+
+def _to_rgb(im: Image.Image) -> np.ndarray:
+    """Any Pillow mode -> HxWx3 uint8 (16-bit and float greys are scaled, alpha dropped)."""
+    if im.mode in ("I;16", "I;16L", "I;16B", "I;16N", "I"):
+        grey = np.asarray(im, dtype=np.float64)
+        top = 65535.0 if grey.max(initial=0) > 255 or im.mode.startswith("I;16") else 255.0
+        grey = np.clip(grey / top * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        return np.repeat(grey[..., None], 3, axis=2)
+    if im.mode == "F":
+        grey = np.nan_to_num(np.asarray(im, dtype=np.float64))
+        lo, hi = grey.min(initial=0), grey.max(initial=0)
+        grey = ((grey - lo) / (hi - lo if hi > lo else 1.0) * 255.0 + 0.5).astype(np.uint8)
+        return np.repeat(grey[..., None], 3, axis=2)
+    if im.mode == "P" and "transparency" in im.info:
+        im = im.convert("RGBA")
+    return np.asarray(im.convert("RGB"), dtype=np.uint8)
+
+
+def decode_image(data: bytes, max_pixels: int) -> np.ndarray:
+    """Upload bytes -> HxWx3 uint8 RGB after EXIF orientation, or ``BadImage``."""
+    if not data:
+        raise BadImage(400, "the 'image' field is empty")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            im = Image.open(io.BytesIO(data))
+    except UnidentifiedImageError:
+        raise BadImage(415, f"the 'image' field is not an image we can read ({READABLE})") from None
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as e:
+        raise BadImage(413, f"image has too many pixels: {e}") from None
+    except Exception as e:  # Pillow raises many types on malformed headers
+        raise BadImage(400, f"the image header is corrupt: {e}") from None
+    width, height = im.size
+    if width < 1 or height < 1:
+        raise BadImage(400, f"image is {width}x{height}")
+    if width * height > max_pixels:
+        raise BadImage(413, f"image is {width}x{height} = {width * height} pixels; the limit is {max_pixels}")
+    try:
+        im.seek(0)  # animated formats: the first frame
+        im.load()
+        im = ImageOps.exif_transpose(im)
+        return _to_rgb(im)
+    except Exception as e:  # truncated or corrupt pixel data
+        raise BadImage(400, f"the image data is truncated or corrupt: {e}") from None
+
+
+def encode_depth_png(metres: np.ndarray) -> bytes:
+    """16-bit single-channel PNG in millimetres; 0 = no depth."""
+    mm = np.where(np.isfinite(metres) & (metres > 0), np.rint(metres * 1000.0), 0)
+    buffer = io.BytesIO()
+    Image.fromarray(np.clip(mm, 0, 65535).astype(np.uint16)).save(
+        buffer, format="PNG", compress_level=PNG_COMPRESS_LEVEL
+    )
+    return buffer.getvalue()
+
+
+def encode_colormap_png(metres: np.ndarray, vmin: float, vmax: float) -> bytes:
+    """An 8-bit RGB preview for people (near blue, far red)."""
+    buffer = io.BytesIO()
+    Image.fromarray(colorize(metres, vmin, vmax)).save(buffer, format="PNG", compress_level=PNG_COMPRESS_LEVEL)
+    return buffer.getvalue()

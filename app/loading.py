@@ -1,0 +1,109 @@
+"""Find, verify and warm the model to serve. Every failure names the file and the reason."""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from app.settings import Settings
+from model.card import ONNX_FILE, TORCHSCRIPT_FILE, CardError, ModelCard, list_versions, load_card, verify_files
+from model.runtime import ExportedGenerator, OnnxGenerator, TorchScriptGenerator
+
+
+class ModelLoadError(Exception):
+    """The configured model cannot be served; the message is the one log line to print."""
+
+
+@dataclass
+class LoadedModel:
+    card: ModelCard
+    path: Path
+    generator: ExportedGenerator
+    warmup_seconds: float
+
+    def predict_depth(self, rgb: np.ndarray) -> np.ndarray:
+        """Metres, HxW float32, for an HxWx3 uint8 image (padded to the grid and cropped back)."""
+        return self.card.depth_encoding.decode(self.generator.predict_raw(rgb))
+
+
+def available_models(registry: Path) -> dict[str, list[str]]:
+    """Every model name in the registry with its published versions, oldest first."""
+    if not Path(registry).is_dir():
+        return {}
+    names = sorted(p.name for p in Path(registry).iterdir() if p.is_dir() and not p.name.startswith("."))
+    return {name: versions for name in names if (versions := list_versions(registry, name))}
+
+
+def resolve(settings: Settings) -> Path:
+    """The version folder to serve: the named (or only) model, the named (or newest) version."""
+    models = available_models(settings.registry)
+    if not models:
+        raise ModelLoadError(f"{settings.registry}: no published model (expected <name>/<version>/card.json)")
+    name = settings.model_name
+    if name is None:
+        if len(models) > 1:
+            raise ModelLoadError(f"{settings.registry}: several models {sorted(models)}; set RGB2CLOUD_MODEL_NAME")
+        name = next(iter(models))
+    if name not in models:
+        raise ModelLoadError(f"{settings.registry / name}: no such model (available: {sorted(models)})")
+    version = settings.model_version or models[name][-1]
+    if version not in models[name]:
+        raise ModelLoadError(f"{settings.registry / name / version}: no such version (available: {models[name]})")
+    return settings.registry / name / version
+
+
+def _weight_shapes(path: Path, backend: str) -> list[tuple[int, ...]]:
+    if backend == "onnx":
+        import onnx
+
+        graph = onnx.load(str(path), load_external_data=False).graph
+        return [tuple(t.dims) for t in graph.initializer if len(t.dims) == 4]
+    import torch
+
+    module = torch.jit.load(str(path), map_location="cpu")
+    return [tuple(t.shape) for t in module.state_dict().values() if t.dim() == 4]
+
+
+def check_weights(card: ModelCard, path: Path, backend: str) -> None:
+    """The card's generator config must describe exactly the convolutions in the file."""
+    expected = Counter(card.generator.weight_shapes())
+    actual = Counter(_weight_shapes(path, backend))
+    if expected != actual:
+        missing, extra = expected - actual, actual - expected
+        raise ModelLoadError(
+            f"{path}: weights do not match the card's generator config {card.generator.model_dump()} "
+            f"(missing {dict(missing)}, unexpected {dict(extra)})"
+        )
+
+
+def load_model(settings: Settings) -> LoadedModel:
+    """Resolve, verify (sha256 + config vs weights), build the runtime and warm it up."""
+    folder = resolve(settings)
+    try:
+        card = load_card(folder)
+        verify_files(folder, card)
+    except CardError as e:
+        raise ModelLoadError(str(e)) from e
+    file_name = ONNX_FILE if settings.backend == "onnx" else TORCHSCRIPT_FILE
+    if file_name not in card.files:
+        raise ModelLoadError(f"{folder / file_name}: the card lists no such file for backend {settings.backend!r}")
+    path = folder / file_name
+    check_weights(card, path, settings.backend)
+    runner_type = OnnxGenerator if settings.backend == "onnx" else TorchScriptGenerator
+    try:
+        runner = runner_type(path, card.input_multiple, settings.threads)
+    except Exception as e:  # the runtime's own parse errors
+        raise ModelLoadError(f"{path}: the {settings.backend} runtime cannot load it: {e}") from e
+    model = LoadedModel(card, folder, runner, 0.0)
+    start = time.perf_counter()
+    warm = model.predict_depth(np.zeros((card.camera.height, card.camera.width, 3), dtype=np.uint8))
+    if warm.shape != (card.camera.height, card.camera.width):
+        raise ModelLoadError(
+            f"{path}: warm-up returned {warm.shape} for a {card.camera.width}x{card.camera.height} input"
+        )
+    model.warmup_seconds = time.perf_counter() - start
+    return model

@@ -1,0 +1,33 @@
+"""Every setting of the service, in one place: environment variables prefixed RGB2CLOUD_."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Read from the environment (RGB2CLOUD_REGISTRY=..., RGB2CLOUD_PORT=...) or passed directly."""
+
+    model_config = SettingsConfigDict(env_prefix="RGB2CLOUD_", extra="forbid")
+
+    registry: Path = Field(Path("weights"), description="registry folder: <name>/<version>/card.json")
+    model_name: str | None = Field(None, description="model to serve (default: the only one in the registry)")
+    model_version: str | None = Field(None, description="version to serve (default: the newest)")
+    backend: Literal["onnx", "torchscript"] = "onnx"
+    threads: int = Field(default_factory=lambda: os.cpu_count() or 1, ge=1, description="inference threads")
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=1, le=65535)
+
+    max_upload_bytes: int = Field(20 * 1024 * 1024, ge=1, description="larger bodies get 413 before buffering")
+    max_pixels: int = Field(40_000_000, ge=1, description="decoded width x height limit (pixel bombs)")
+    inference_max_pixels: int = Field(
+        640 * 480, ge=1, description="larger images are shrunk for the generator; depth comes back at full size"
+    )
+    max_queue: int = Field(8, ge=0, description="requests waiting for inference beyond this get 503")
+    retry_after_s: int = Field(1, ge=0, description="Retry-After on 503")
+    cors_origins: list[str] = Field(default_factory=list, description="allowed browser origins; none by default")
