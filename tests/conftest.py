@@ -73,3 +73,38 @@ def trained_checkpoint(tmp_path_factory) -> Path:
     config = write_config(out / "config.yaml", tiny_config(out / "run", train={"steps": 6}))
     run_cli("train", str(config))
     return out / "run" / "checkpoints" / "last.pt"
+
+
+@pytest.fixture(scope="session")
+def registry(trained_checkpoint, tmp_path_factory) -> Path:
+    """A registry holding the tiny trained generator, published the way users publish."""
+    out = tmp_path_factory.mktemp("registry")
+    run_cli(
+        "evaluate",
+        str(trained_checkpoint),
+        "--format",
+        "7scenes",
+        "--root",
+        str(SEVEN_SCENES),
+        "--frames",
+        "850-851",
+        "--out",
+        str(out / "eval"),
+        "--samples",
+        "0",
+    )
+    run_cli(
+        "export",
+        str(trained_checkpoint),
+        "--name",
+        "tiny",
+        "--version",
+        "0.1.0",
+        "--metrics",
+        str(out / "eval" / "metrics.json"),
+        "--parity-image",
+        str(TUM_FRAME / "TUM_color.png"),
+        "--registry",
+        str(out / "weights"),
+    )
+    return out / "weights"

@@ -1,0 +1,62 @@
+"""Start the real service (python -m app under uvicorn) on a free loopback port."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextmanager
+def running_service(**env: str):
+    """Yield the base URL of a started service; the settings come in as RGB2CLOUD_* variables."""
+    port = free_port()
+    environment = {
+        **os.environ,
+        "RGB2CLOUD_PORT": str(port),
+        "RGB2CLOUD_HOST": "127.0.0.1",
+        **{f"RGB2CLOUD_{k.upper()}": v for k, v in env.items()},
+    }
+    process = subprocess.Popen(
+        [sys.executable, "-m", "app"],
+        cwd=REPO,
+        env=environment,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            if process.poll() is not None:
+                raise RuntimeError(f"service exited with {process.returncode}:\n{process.stdout.read()}")
+            try:
+                if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            if time.monotonic() > deadline:
+                raise RuntimeError("service did not become ready in 60 s")
+            time.sleep(0.2)
+        yield url
+    finally:
+        process.terminate()
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            process.kill()
