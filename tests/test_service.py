@@ -288,7 +288,7 @@ def test_a_corrupt_model_stops_startup_with_one_clear_line(registry, tmp_path):
         capture_output=True,
         text=True,
         timeout=60,
-        env={**__import__("os").environ, **env},
+        env={**os.environ, **env},
     )
     assert result.returncode == 1
     lines = [line for line in result.stderr.splitlines() if line.strip()]
