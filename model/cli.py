@@ -123,5 +123,31 @@ def baselines(
         (out / "baselines.json").write_text(json.dumps(payload, indent=2) + "\n")
 
 
+@app.command()
+def client(
+    source: Annotated[Path, typer.Argument(help="an image, or a folder of images", exists=True)],
+    out: Annotated[Path | None, typer.Option("-o", "--out", help="output folder (default: beside each input)")] = None,
+    depth: Annotated[bool, typer.Option(help="write <name>.depth.png (16-bit mm)")] = True,
+    pointcloud: Annotated[bool, typer.Option(help="write <name>.ply")] = False,
+    url: Annotated[str, typer.Option(help="service base URL")] = "http://127.0.0.1:8000",
+    timeout: Annotated[float, typer.Option(help="seconds per request")] = 60.0,
+    retries: Annotated[int, typer.Option(help="retries on 503 or a dropped connection")] = 5,
+    stride: Annotated[int, typer.Option(help="point cloud: keep every stride-th row and column")] = 1,
+) -> None:
+    """Send images to a running service and save depth PNGs and/or PLY point clouds."""
+    from app.client import ClientOptions, run
+
+    kinds = [k for k, on in (("depth", depth), ("pointcloud", pointcloud)) if on]
+    if not kinds:
+        raise typer.BadParameter("nothing to do: enable --depth and/or --pointcloud")
+    options = ClientOptions(url=url, timeout_s=timeout, retries=retries, cloud_params={"stride": stride})
+    failed = 0
+    for image, outcome in run(source, kinds, out, options):
+        failed += outcome.startswith("error")
+        typer.echo(f"{image}: {outcome}", err=outcome.startswith("error"))
+    if failed:
+        raise typer.Exit(1)
+
+
 def main() -> None:
     app()

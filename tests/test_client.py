@@ -1,0 +1,57 @@
+"""The client: real service for the happy path, a scripted transport for retries."""
+
+from __future__ import annotations
+
+import httpx
+import numpy as np
+from conftest import TUM_FRAME, run_cli
+from PIL import Image
+from plyfile import PlyData
+from service_server import running_service
+
+from app.client import ClientOptions, run
+
+
+def _photos(folder, count=2):
+    folder.mkdir()
+    rgb = np.asarray(Image.open(TUM_FRAME / "TUM_color.png").convert("RGB"))
+    for i in range(count):
+        Image.fromarray(rgb[: 100 + i, :120]).save(folder / f"photo{i}.jpg")
+    (folder / "notes.txt").write_text("not an image, skipped")
+    return folder
+
+
+def test_client_folder_against_the_real_service(registry, tmp_path):
+    photos = _photos(tmp_path / "photos")
+    with running_service(registry=str(registry), threads="1") as url:
+        result = run_cli(
+            "client", str(photos), "-o", str(tmp_path / "out"), "--pointcloud", "--url", url, "--stride", "2"
+        )
+    assert result.stdout.count("wrote") == 4
+    for i in range(2):
+        with Image.open(tmp_path / "out" / f"photo{i}.depth.png") as im:
+            assert im.size == (120, 100 + i) and np.asarray(im).dtype == np.uint16
+        cloud = PlyData.read(str(tmp_path / "out" / f"photo{i}.ply"))
+        assert 0 < cloud["vertex"].count <= 60 * (50 + i)
+
+
+def test_client_retries_503_then_succeeds(tmp_path):
+    photos = _photos(tmp_path / "photos", count=1)
+    calls = []
+
+    def handler(request: httpx.Request) -> httpx.Response:
+        calls.append(request.url.path)
+        if len(calls) < 3:
+            return httpx.Response(503, headers={"Retry-After": "0"}, json={"detail": "busy"})
+        return httpx.Response(200, content=b"PNG")
+
+    outcomes = list(run(photos, ["depth"], tmp_path / "out", ClientOptions(retries=5), httpx.MockTransport(handler)))
+    assert calls == ["/depth"] * 3
+    assert outcomes[0][1].startswith("wrote") and (tmp_path / "out" / "photo0.depth.png").read_bytes() == b"PNG"
+
+
+def test_client_reports_errors_and_gives_up_after_retries(tmp_path):
+    photos = _photos(tmp_path / "photos", count=1)
+    busy = httpx.MockTransport(lambda r: httpx.Response(503, headers={"Retry-After": "0"}, json={"detail": "busy"}))
+    outcomes = list(run(photos, ["depth"], None, ClientOptions(retries=2), busy))
+    assert outcomes == [(photos / "photo0.jpg", "error: HTTP 503: busy")]
