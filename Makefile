@@ -2,8 +2,11 @@
 VENV := .venv
 PY := $(VENV)/bin/python
 INSTALLED := $(VENV)/.installed
+# The serving install lives apart: it must never contain torch.
+SERVE_VENV := .venv-serve
+SERVE_INSTALLED := $(SERVE_VENV)/.installed
 
-.PHONY: install test lint
+.PHONY: install test lint serve openapi
 
 $(INSTALLED): pyproject.toml
 	python3 -m venv $(VENV)
@@ -11,6 +14,12 @@ $(INSTALLED): pyproject.toml
 	# torch first and exactly: this version has a CPU build here; anything looser pulls CUDA wheels.
 	$(PY) -m pip install -q torch==2.13.0
 	$(PY) -m pip install -q -e '.[train,dev]'
+	touch $@
+
+$(SERVE_INSTALLED): pyproject.toml
+	python3 -m venv $(SERVE_VENV)
+	$(SERVE_VENV)/bin/python -m pip install -q --upgrade pip
+	$(SERVE_VENV)/bin/python -m pip install -q -e .
 	touch $@
 
 install: $(INSTALLED)
@@ -21,3 +30,10 @@ lint: $(INSTALLED)
 
 test: lint
 	$(PY) -m pytest
+
+# The service on 127.0.0.1:8000 with the bundled default model (weights/); RGB2CLOUD_* overrides.
+serve: $(SERVE_INSTALLED)
+	$(SERVE_VENV)/bin/python -m app
+
+openapi: $(INSTALLED)
+	$(PY) -m app.openapi

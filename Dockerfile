@@ -1,0 +1,26 @@
+# The serving image: slim Python, the serving install only (no torch), the bundled model.
+FROM python:3.11-slim
+
+ENV PYTHONDONTWRITEBYTECODE=1 \
+    PYTHONUNBUFFERED=1 \
+    PIP_NO_CACHE_DIR=1 \
+    RGB2CLOUD_HOST=0.0.0.0 \
+    RGB2CLOUD_PORT=8000 \
+    RGB2CLOUD_REGISTRY=weights
+
+WORKDIR /srv/rgb2cloud
+RUN groupadd --system --gid 10001 rgb2cloud \
+    && useradd --system --uid 10001 --gid rgb2cloud --no-create-home rgb2cloud
+
+COPY pyproject.toml README.md ./
+COPY app ./app
+COPY model ./model
+RUN pip install --no-cache-dir .
+
+COPY weights ./weights
+
+USER 10001:10001
+EXPOSE 8000
+HEALTHCHECK --interval=30s --timeout=5s --start-period=60s --retries=3 \
+    CMD ["python", "-c", "import os, urllib.request; urllib.request.urlopen('http://127.0.0.1:%s/readyz' % os.environ['RGB2CLOUD_PORT'], timeout=4)"]
+CMD ["python", "-m", "app"]
