@@ -13,11 +13,9 @@ so a resumed run repeats an uninterrupted one bit for bit on the same device.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
-import platform
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +37,7 @@ from model.data.sources import open_source
 from model.evaluate import evaluate_frames
 from model.inference import predict_depth
 from model.losses import GANLoss, feature_matching, fill_holes, masked_l1, patch_weights
+from model.machine import cpu_description
 from model.networks import GlobalGenerator, MultiscaleDiscriminator
 from model.visualize import sample_grid
 
@@ -78,14 +77,7 @@ def pick_device(choice: str, local_rank: int) -> torch.device:
 def hardware_description(device: torch.device, world_size: int) -> str:
     if device.type == "cuda":
         return f"{world_size} x {torch.cuda.get_device_name(device)}"
-    cpu = platform.processor() or platform.machine()
-    with contextlib.suppress(OSError, StopIteration):
-        cpu = next(
-            line.split(":", 1)[1].strip()
-            for line in Path("/proc/cpuinfo").read_text().splitlines()
-            if line.startswith("model name")
-        )
-    return f"CPU {cpu}, {os.cpu_count()} cores, {world_size} process(es), {torch.get_num_threads()} threads each"
+    return f"CPU {cpu_description()}, {world_size} process(es), {torch.get_num_threads()} threads each"
 
 
 def init_weights(module: nn.Module) -> None:

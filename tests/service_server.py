@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
@@ -21,9 +22,15 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+@dataclass(frozen=True)
+class Service:
+    url: str
+    pid: int
+
+
 @contextmanager
 def running_service(**env: str):
-    """Yield the base URL of a started service; the settings come in as RGB2CLOUD_* variables."""
+    """Yield a started service (URL and PID); the settings come in as RGB2CLOUD_* variables."""
     port = free_port()
     environment = {
         **os.environ,
@@ -53,7 +60,7 @@ def running_service(**env: str):
             if time.monotonic() > deadline:
                 raise RuntimeError("service did not become ready in 60 s")
             time.sleep(0.2)
-        yield url
+        yield Service(url, process.pid)
     finally:
         process.terminate()
         try:

@@ -23,7 +23,8 @@ def _photos(folder, count=2):
 
 def test_client_folder_against_the_real_service(registry, tmp_path):
     photos = _photos(tmp_path / "photos")
-    with running_service(registry=str(registry), threads="1") as url:
+    with running_service(registry=str(registry), threads="1") as running:
+        url = running.url
         result = run_cli(
             "client", str(photos), "-o", str(tmp_path / "out"), "--pointcloud", "--url", url, "--stride", "2"
         )

@@ -13,7 +13,8 @@ from service_server import running_service
 
 def test_schemathesis_finds_no_server_error(registry):
     cli = shutil.which("schemathesis") or str(Path(sys.executable).with_name("schemathesis"))
-    with running_service(registry=str(registry), threads="1") as url:
+    with running_service(registry=str(registry), threads="1") as running:
+        url = running.url
         result = subprocess.run(
             [
                 cli,

@@ -31,7 +31,8 @@ LIMIT = 2_000_000
 def service(registry):
     with running_service(
         registry=str(registry), max_upload_bytes=str(LIMIT), threads="1", cors_origins=json.dumps([ALLOWED_ORIGIN])
-    ) as url:
+    ) as running:
+        url = running.url
         yield url
 
 
@@ -265,7 +266,8 @@ def test_overload_gets_503_with_retry_after_at_once(registry):
 
     with running_service(
         registry=str(registry), max_queue="0", threads="1", inference_max_pixels=str(1920 * 1440)
-    ) as url:
+    ) as running:
+        url = running.url
         responses = asyncio.run(burst(url))
         statuses = [r.status_code for r in responses]
         assert set(statuses) <= {200, 503} and 200 in statuses and 503 in statuses, statuses

@@ -1,0 +1,205 @@
+"""Serving benchmark: per-stage times, generator backends, Open3D comparison, concurrency.
+
+    python bench/serving.py --registry weights [--repeats 20] [--markdown docs/benchmarks.md]
+
+Every figure is a median over ``--repeats`` runs on one 640x480 photo, taken in
+one run on one machine, so the ratios between rows are what to read. Open3D
+is optional (``pip install -e '.[bench]'``); without it that row is skipped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import os
+import platform
+import statistics
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "tests"))
+
+from service_server import running_service  # noqa: E402
+
+from app.imaging import decode_image, encode_depth_png  # noqa: E402
+from app.loading import load_model  # noqa: E402
+from app.ply import encode_ply  # noqa: E402
+from app.settings import Settings  # noqa: E402
+from model.codec import rgb_to_input  # noqa: E402
+from model.geometry import Intrinsics, pad_to_multiple, point_cloud  # noqa: E402
+from model.machine import cpu_description  # noqa: E402
+
+DEFAULT_IMAGE = REPO.parent / "shared/data/7scenes-redkitchen/frame-000900.color.jpg"
+
+
+def median_ms(fn, repeats: int) -> float:
+    fn()  # warm
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times) * 1000
+
+
+def machine() -> str:
+    import onnxruntime
+
+    return f"{cpu_description()}, Python {platform.python_version()}, ONNX Runtime {onnxruntime.__version__}"
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--registry", type=Path, default=REPO / "weights")
+    parser.add_argument("--image", type=Path, default=DEFAULT_IMAGE)
+    parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--threads", type=int, default=os.cpu_count())
+    parser.add_argument("--markdown", type=Path, help="also write the tables here")
+    args = parser.parse_args()
+
+    settings = Settings(registry=args.registry, threads=args.threads)
+    model = load_model(settings)
+    card = model.card
+    data = args.image.read_bytes()
+    rgb = decode_image(data, settings.max_pixels)
+    h, w = rgb.shape[:2]
+    m = card.input_multiple
+    x = rgb_to_input(pad_to_multiple(rgb, m))
+    session, name = model.generator.session, model.generator.input_name
+    depth = model.predict_depth(rgb)
+    c = card.camera
+    k = Intrinsics(c.fx, c.fy, c.cx, c.cy, c.width, c.height).resized(w, h)
+    points, colours = point_cloud(depth, rgb, k)
+
+    r = args.repeats
+    stages = {
+        "decode (JPEG -> RGB)": median_ms(lambda: decode_image(data, settings.max_pixels), r),
+        "fit to grid (pad + normalise)": median_ms(lambda: rgb_to_input(pad_to_multiple(rgb, m)), r),
+        "generator (ONNX Runtime)": median_ms(lambda: session.run(None, {name: x}), r),
+        "depth decode (tanh -> metres)": median_ms(lambda: card.depth_encoding.decode(x[0, 0, :h, :w]), r),
+        "depth PNG encode": median_ms(lambda: encode_depth_png(depth), r),
+        "back-projection": median_ms(lambda: point_cloud(depth, rgb, k), r),
+        "PLY encode": median_ms(lambda: encode_ply(points, colours), r),
+    }
+
+    with running_service(registry=str(args.registry), threads=str(args.threads)) as service:
+        url = service.url
+        client = httpx.Client(timeout=60)
+        files = {"image": ("photo.jpg", data)}
+        stages["HTTP total /depth"] = median_ms(lambda: client.post(f"{url}/depth", files=files), r)
+        stages["HTTP total /pointcloud"] = median_ms(lambda: client.post(f"{url}/pointcloud", files=files), r)
+        rss_before = rss_mb(service.pid)
+        throughput = {}
+        per_client = max(2, r // 2)
+
+        def one_client(_: int) -> list[int]:
+            with httpx.Client(timeout=120) as own:
+                return [own.post(f"{url}/depth", files=files).status_code for _ in range(per_client)]
+
+        for clients in (1, 2, 4, 8):
+            start = time.perf_counter()
+            with ThreadPoolExecutor(clients) as pool:
+                statuses = [s for batch in pool.map(one_client, range(clients)) for s in batch]
+            elapsed = time.perf_counter() - start
+            throughput[clients] = (len(statuses) / elapsed, sum(s != 200 for s in statuses), len(statuses))
+        rss_after = rss_mb(service.pid)
+
+    backends = {"ONNX Runtime": stages["generator (ONNX Runtime)"]}
+    try:
+        import torch
+
+        from model.networks import GlobalGenerator
+
+        torch.set_num_threads(args.threads)
+        scripted = torch.jit.load(str(model.path / "generator.torchscript.pt")).eval()
+        eager = GlobalGenerator(card.generator).eval()
+        eager.load_state_dict(scripted.state_dict())
+        xt = torch.from_numpy(x)
+        with torch.inference_mode():
+            backends["TorchScript"] = median_ms(lambda: scripted(xt), r)
+            backends["eager PyTorch"] = median_ms(lambda: eager(xt), r)
+    except ImportError:
+        pass
+
+    open3d_row = None
+    with tempfile.TemporaryDirectory() as tmp:
+        ours = median_ms(lambda: Path(tmp, "ours.ply").write_bytes(encode_ply(*point_cloud(depth, rgb, k))), r)
+        try:
+            import open3d as o3d
+
+            colour_image = o3d.geometry.Image(np.ascontiguousarray(rgb))
+            depth_image = o3d.geometry.Image(np.ascontiguousarray(depth))
+            intrinsic = o3d.camera.PinholeCameraIntrinsic(w, h, k.fx, k.fy, k.cx, k.cy)
+
+            def open3d_cloud() -> None:
+                rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
+                    colour_image, depth_image, depth_scale=1.0, depth_trunc=1000.0, convert_rgb_to_intensity=False
+                )
+                cloud = o3d.geometry.PointCloud.create_from_rgbd_image(rgbd, intrinsic)
+                o3d.io.write_point_cloud(str(Path(tmp, "open3d.ply")), cloud, write_ascii=False)
+
+            open3d_row = median_ms(open3d_cloud, r)
+        except ImportError:
+            pass
+
+    generator = stages["generator (ONNX Runtime)"]
+    out = io.StringIO()
+    out.write(
+        f"Machine: {machine()}\n\nModel: {card.name} {card.version}, {w}x{h} photo "
+        f"`{args.image.name}`, {args.threads} inference threads, medians of {r} runs.\n\n"
+    )
+    out.write("| stage | median ms |\n|---|---|\n")
+    for stage, ms in stages.items():
+        out.write(f"| {stage} | {ms:.1f} |\n")
+    for route in ("/depth", "/pointcloud"):
+        total = stages[f"HTTP total {route}"]
+        out.write(
+            f"\nEverything but the generator on {route}: {total - generator:.1f} ms of {total:.1f} ms "
+            f"= {(total - generator) / total:.0%}\n"
+        )
+    out.write("\n| generator backend | median ms | vs ONNX Runtime |\n|---|---|---|\n")
+    for backend, ms in backends.items():
+        out.write(f"| {backend} | {ms:.1f} | {ms / generator:.2f}x |\n")
+    out.write("\n| back-projection + binary PLY to disk | median ms |\n|---|---|\n")
+    out.write(f"| rgb2cloud (`point_cloud` + `encode_ply`) | {ours:.1f} |\n")
+    if open3d_row is not None:
+        out.write(
+            f"| Open3D (`create_from_rgbd_image` + `write_point_cloud`) | {open3d_row:.1f} "
+            f"({open3d_row / ours:.1f}x ours) |\n"
+        )
+    else:
+        out.write("| Open3D | not installed (`pip install -e '.[bench]'`) |\n")
+    single = 1000 / generator
+    out.write(f"\nGenerator single-stream rate: {single:.2f} images/s.\n\n")
+    out.write(
+        "| concurrent clients | requests | errors | images/s | vs single-stream generator |\n|---|---|---|---|---|\n"
+    )
+    for clients, (rate, errors, total) in throughput.items():
+        out.write(f"| {clients} | {total} | {errors} | {rate:.2f} | {rate / single:.0%} |\n")
+    out.write(f"\nServer RSS: {rss_before:.0f} MB before the concurrency runs, {rss_after:.0f} MB after.\n")
+    text = out.getvalue()
+    print(text)
+    if args.markdown:
+        args.markdown.write_text(
+            f"# Serving benchmarks\n\nMade by `python bench/serving.py --registry {args.registry} "
+            f"--repeats {r} --markdown {args.markdown}`.\n\n{text}"
+        )
+
+
+if __name__ == "__main__":
+    main()
