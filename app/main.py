@@ -62,7 +62,7 @@ def create_app(settings: Settings | None = None, model: LoadedModel | None = Non
     app.state.settings = settings
     app.state.metrics = metrics
     app.state.model = model
-    app.state.pool = InferencePool(1, settings.max_queue, metrics.pool_changed)
+    app.state.pool = InferencePool(settings.workers, settings.max_queue, metrics.pool_changed)
 
     @app.exception_handler(BadImage)
     async def bad_image(_: Request, error: BadImage) -> JSONResponse:

@@ -19,7 +19,12 @@ class Settings(BaseSettings):
     model_name: str | None = Field(None, description="model to serve (default: the only one in the registry)")
     model_version: str | None = Field(None, description="version to serve (default: the newest)")
     backend: Literal["onnx", "torchscript"] = "onnx"
-    threads: int = Field(default_factory=lambda: os.cpu_count() or 1, ge=1, description="inference threads")
+    threads: int = Field(
+        default_factory=lambda: os.cpu_count() or 1, ge=1, description="threads each generator call uses"
+    )
+    workers: int = Field(
+        1, ge=1, description="requests processed at once; the default runs one image at a time on all cores"
+    )
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=1, le=65535)
 

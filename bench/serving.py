@@ -4,7 +4,8 @@
 
 Every figure is a median over ``--repeats`` runs on one 640x480 photo, taken in
 one run on one machine, so the ratios between rows are what to read. Open3D
-is optional (``pip install -e '.[bench]'``); without it that row is skipped.
+is optional (``pip install -e '.[bench]'``, and on Debian ``apt-get install
+libusb-1.0-0``); without it that row is skipped.
 """
 
 from __future__ import annotations

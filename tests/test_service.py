@@ -295,3 +295,13 @@ def test_a_corrupt_model_stops_startup_with_one_clear_line(registry, tmp_path):
     assert result.returncode == 1
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "generator.onnx" in lines[0] and "sha256" in lines[0], result.stderr
+
+
+def test_torchscript_backend_serves_the_same_depth(registry, service):
+    rgb = tum_rgb(97, 71)
+    onnx_png = post(service, "/depth", png_bytes(rgb)).content
+    with running_service(registry=str(registry), backend="torchscript", threads="1") as running:
+        r = post(running.url, "/depth", png_bytes(rgb))
+    assert r.status_code == 200
+    with Image.open(io.BytesIO(r.content)) as a, Image.open(io.BytesIO(onnx_png)) as b:
+        assert np.abs(np.asarray(a).astype(int) - np.asarray(b).astype(int)).max() <= 1
