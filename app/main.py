@@ -77,6 +77,9 @@ def create_app(settings: Settings | None = None, model: LoadedModel | None = Non
         )
 
     app.include_router(router)
+    # The last added is the outermost: CORS wraps everything, so browsers can read even a 413.
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    app.add_middleware(MetricsMiddleware, metrics=metrics)
     app.add_middleware(
         CORSMiddleware,
         allow_origins=settings.cors_origins,
@@ -84,6 +87,4 @@ def create_app(settings: Settings | None = None, model: LoadedModel | None = Non
         allow_headers=["*"],
         expose_headers=EXPOSED_HEADERS,
     )
-    app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
-    app.add_middleware(MetricsMiddleware, metrics=metrics)
     return app

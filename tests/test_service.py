@@ -243,6 +243,8 @@ def test_cors_only_for_configured_origins(service):
     other = httpx.options(f"{service}/depth", headers={"Origin": "https://evil.example", **preflight}, timeout=5)
     assert "access-control-allow-origin" not in other.headers
     assert Settings().cors_origins == []  # the default allows none
+    refused = post(service, "/depth", b"\xff" * (LIMIT + 1), headers={"Origin": ALLOWED_ORIGIN})
+    assert refused.status_code == 413 and refused.headers["access-control-allow-origin"] == ALLOWED_ORIGIN
 
 
 def test_models_and_metrics(service):
