@@ -62,6 +62,42 @@ def run_cli(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess:
     return result
 
 
+def evaluate_cli(model: Path, out: Path, frames: str, samples: int = 0) -> subprocess.CompletedProcess:
+    """``rgb2cloud evaluate`` of a checkpoint or version folder on 7-Scenes test frames."""
+    return run_cli(
+        "evaluate",
+        str(model),
+        "--format",
+        "7scenes",
+        "--root",
+        str(SEVEN_SCENES),
+        "--frames",
+        frames,
+        "--out",
+        str(out),
+        "--samples",
+        str(samples),
+    )
+
+
+def export_args(checkpoint: Path, metrics: Path, registry: Path) -> list[str]:
+    """``rgb2cloud export`` arguments publishing ``tiny 0.1.0``, parity-checked on the real TUM frame."""
+    return [
+        "export",
+        str(checkpoint),
+        "--name",
+        "tiny",
+        "--version",
+        "0.1.0",
+        "--metrics",
+        str(metrics),
+        "--parity-image",
+        str(TUM_FRAME / "TUM_color.png"),
+        "--registry",
+        str(registry),
+    ]
+
+
 def save_png16(path: Path, array: np.ndarray) -> None:
     Image.fromarray(array.astype(np.uint16)).save(path)
 
@@ -79,32 +115,6 @@ def trained_checkpoint(tmp_path_factory) -> Path:
 def registry(trained_checkpoint, tmp_path_factory) -> Path:
     """A registry holding the tiny trained generator, published the way users publish."""
     out = tmp_path_factory.mktemp("registry")
-    run_cli(
-        "evaluate",
-        str(trained_checkpoint),
-        "--format",
-        "7scenes",
-        "--root",
-        str(SEVEN_SCENES),
-        "--frames",
-        "850-851",
-        "--out",
-        str(out / "eval"),
-        "--samples",
-        "0",
-    )
-    run_cli(
-        "export",
-        str(trained_checkpoint),
-        "--name",
-        "tiny",
-        "--version",
-        "0.1.0",
-        "--metrics",
-        str(out / "eval" / "metrics.json"),
-        "--parity-image",
-        str(TUM_FRAME / "TUM_color.png"),
-        "--registry",
-        str(out / "weights"),
-    )
+    evaluate_cli(trained_checkpoint, out / "eval", "850-851")
+    run_cli(*export_args(trained_checkpoint, out / "eval" / "metrics.json", out / "weights"))
     return out / "weights"

@@ -10,7 +10,7 @@ from datetime import UTC, datetime
 import numpy as np
 import onnx
 import pytest
-from conftest import REPO, SEVEN_SCENES, TUM_FRAME, run_cli
+from conftest import REPO, TUM_FRAME, evaluate_cli, export_args, run_cli
 from PIL import Image
 
 from model.card import (
@@ -37,20 +37,7 @@ from model.runtime import OnnxGenerator
 @pytest.fixture(scope="module")
 def evaluated(trained_checkpoint, tmp_path_factory):
     out = tmp_path_factory.mktemp("eval")
-    result = run_cli(
-        "evaluate",
-        str(trained_checkpoint),
-        "--format",
-        "7scenes",
-        "--root",
-        str(SEVEN_SCENES),
-        "--frames",
-        "850-852",
-        "--out",
-        str(out),
-        "--samples",
-        "2",
-    )
+    result = evaluate_cli(trained_checkpoint, out, "850-852", samples=2)
     return out, result.stdout
 
 
@@ -84,20 +71,7 @@ def test_parity_at_two_sizes_one_off_grid(trained_checkpoint, tmp_path):
 
 def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_checkpoint, evaluated, tmp_path):
     out, _ = evaluated
-    args = [
-        "export",
-        str(trained_checkpoint),
-        "--name",
-        "tiny",
-        "--version",
-        "0.1.0",
-        "--metrics",
-        str(out / "metrics.json"),
-        "--parity-image",
-        str(TUM_FRAME / "TUM_color.png"),
-        "--registry",
-        str(tmp_path / "registry"),
-    ]
+    args = export_args(trained_checkpoint, out / "metrics.json", tmp_path / "registry")
     stdout = run_cli(*args).stdout
     assert "parity onnx@" in stdout and "published" in stdout
     folder = tmp_path / "registry" / "tiny" / "0.1.0"
@@ -114,18 +88,7 @@ def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_check
     assert max(card.parity.values()) <= 1e-4
 
     # The published version scores as its checkpoint does, through ONNX Runtime.
-    stdout = run_cli(
-        "evaluate",
-        str(folder),
-        "--format",
-        "7scenes",
-        "--root",
-        str(SEVEN_SCENES),
-        "--frames",
-        "850-852",
-        "--out",
-        str(tmp_path / "eval-onnx"),
-    ).stdout
+    stdout = evaluate_cli(folder, tmp_path / "eval-onnx", "850-852").stdout
     assert "| tiny 0.1.0 (ONNX) |" in stdout
     onnx_metrics = json.loads((tmp_path / "eval-onnx" / "metrics.json").read_text())["metrics"]
     eager_metrics = json.loads((out / "metrics.json").read_text())["metrics"]
