@@ -32,7 +32,7 @@ SEMVER = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)(?:-([0-9A-Za-z.-
 NAME = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
 
 
-class CardError(Exception):
+class CardError(ValueError):
     """A card or its files cannot be trusted; the message names the file and the reason."""
 
 

@@ -150,4 +150,9 @@ def client(
 
 
 def main() -> None:
-    app()
+    """Run the CLI; mistakes a user can fix (bad paths, configs, versions) print one line, exit 1."""
+    try:
+        app()
+    except (OSError, ValueError) as e:
+        typer.echo(f"error: {e}", err=True)
+        raise SystemExit(1) from None

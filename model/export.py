@@ -33,7 +33,7 @@ PARITY_TOLERANCE = 1e-4
 OPSET = 18
 
 
-class ParityError(Exception):
+class ParityError(ValueError):
     """An exported file disagrees with eager PyTorch beyond the tolerance."""
 
 

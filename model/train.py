@@ -67,7 +67,7 @@ def setup_distributed(device_kind: str) -> Distributed:
 
 def pick_device(choice: str, local_rank: int) -> torch.device:
     if choice == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError("train.device=cuda, but torch sees no CUDA device (use train.device=auto or cpu)")
+        raise ValueError("train.device=cuda, but torch sees no CUDA device (use train.device=auto or cpu)")
     if choice == "cuda" or (choice == "auto" and torch.cuda.is_available()):
         torch.cuda.set_device(local_rank)
         return torch.device("cuda", local_rank)

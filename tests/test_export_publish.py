@@ -96,7 +96,8 @@ def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_check
         assert abs(onnx_metrics[key] - eager_metrics[key]) < 1e-4
 
     again = subprocess.run([sys.executable, "-m", "model", *args], cwd=REPO, capture_output=True, text=True)
-    assert again.returncode != 0 and "already exists" in again.stderr
+    assert again.returncode == 1 and again.stderr.startswith("error: ") and "already exists" in again.stderr
+    assert "Traceback" not in again.stderr
     assert load_card(folder) == card  # untouched
 
 
