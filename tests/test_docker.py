@@ -50,7 +50,6 @@ def test_image_shape():
     assert "weights" in copied and "tests" not in copied
 
 
-@pytest.mark.skipif(not (REPO / "weights").is_dir(), reason="no bundled model in weights/")
 def test_install_and_start_steps_in_a_clean_venv(tmp_path):
     """Replays COPY, RUN, ENV, CMD and HEALTHCHECK: the serving install has no torch and serves."""
     context = tmp_path / "srv"
