@@ -8,7 +8,9 @@ orientation is applied, and every Pillow mode becomes RGB uint8.
 from __future__ import annotations
 
 import io
+import struct
 import warnings
+import zlib
 
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
@@ -16,7 +18,7 @@ from PIL import Image, ImageOps, UnidentifiedImageError
 from model.colormap import colorize
 
 READABLE = "JPEG, PNG, WebP, TIFF, BMP, GIF"
-#: Depth PNGs are written with light compression: it is most of the encode time.
+#: PNGs are written with light compression: it is most of the encode time.
 PNG_COMPRESS_LEVEL = 1
 
 
@@ -74,14 +76,31 @@ def decode_image(data: bytes, max_pixels: int) -> np.ndarray:
         raise BadImage(400, f"the image data is truncated or corrupt: {e}") from None
 
 
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
 def encode_depth_png(metres: np.ndarray) -> bytes:
-    """16-bit single-channel PNG in millimetres; 0 = no depth."""
+    """16-bit single-channel PNG in millimetres; 0 = no depth.
+
+    Written directly (every row with PNG's "Up" filter, zlib level 1) rather than
+    through Pillow, whose per-row filter search made this 1.8x slower for the same
+    size (bench/serving.py). Tests decode the result with Pillow.
+    """
     mm = np.where(np.isfinite(metres) & (metres > 0), np.rint(metres * 1000.0), 0)
-    buffer = io.BytesIO()
-    Image.fromarray(np.clip(mm, 0, 65535).astype(np.uint16)).save(
-        buffer, format="PNG", compress_level=PNG_COMPRESS_LEVEL
+    height, width = mm.shape
+    big_endian = np.clip(mm, 0, 65535).astype(">u2").view(np.uint8).reshape(height, 2 * width)
+    rows = np.empty((height, 2 * width + 1), dtype=np.uint8)
+    rows[:, 0] = 2  # filter type "Up": each byte minus the byte above (the first row sees zeros)
+    rows[0, 1:] = big_endian[0]
+    np.subtract(big_endian[1:], big_endian[:-1], out=rows[1:, 1:])
+    header = struct.pack(">IIBBBBB", width, height, 16, 0, 0, 0, 0)  # 16-bit greyscale
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + _png_chunk(b"IHDR", header)
+        + _png_chunk(b"IDAT", zlib.compress(rows.tobytes(), PNG_COMPRESS_LEVEL))
+        + _png_chunk(b"IEND", b"")
     )
-    return buffer.getvalue()
 
 
 def encode_colormap_png(metres: np.ndarray, vmin: float, vmax: float) -> bytes:

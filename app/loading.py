@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -24,10 +25,15 @@ class LoadedModel:
     path: Path
     generator: ExportedGenerator
     warmup_seconds: float
+    #: One generator call at a time: it already uses every inference thread, while the
+    #: other pool workers decode and encode around it.
+    lock: threading.Lock = field(default_factory=threading.Lock)
 
     def predict_depth(self, rgb: np.ndarray) -> np.ndarray:
         """Metres, HxW float32, for an HxWx3 uint8 image (padded to the grid and cropped back)."""
-        return self.card.depth_encoding.decode(self.generator.predict_raw(rgb))
+        with self.lock:
+            raw = self.generator.predict_raw(rgb)
+        return self.card.depth_encoding.decode(raw)
 
 
 def available_models(registry: Path) -> dict[str, list[str]]:

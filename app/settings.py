@@ -23,7 +23,10 @@ class Settings(BaseSettings):
         default_factory=lambda: os.cpu_count() or 1, ge=1, description="threads each generator call uses"
     )
     workers: int = Field(
-        1, ge=1, description="requests processed at once; the default runs one image at a time on all cores"
+        2,
+        ge=1,
+        description="requests processed at once; generator calls still run one at a time on all threads, "
+        "so the others decode and encode meanwhile",
     )
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=1, le=65535)

@@ -181,7 +181,7 @@ def main() -> None:
     if open3d_row is not None:
         out.write(
             f"| Open3D (`create_from_rgbd_image` + `write_point_cloud`) | {open3d_row:.1f} "
-            f"({open3d_row / ours:.1f}x ours) |\n"
+            f"({open3d_row / ours:.2f}x ours) |\n"
         )
     else:
         out.write("| Open3D | not installed (`pip install -e '.[bench]'`) |\n")

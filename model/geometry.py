@@ -89,17 +89,29 @@ def point_cloud(
     min_depth: float = 0.0,
     max_depth: float = float("inf"),
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Valid points and their colours: ((N, 3) float32 metres, (N, 3) uint8).
+    """Valid points and their colours: ((N, 3) float32 metres, (N, 3) uint8), row-major order.
 
-    Pixels with no depth (0, NaN) or outside [min_depth, max_depth] are dropped;
-    ``stride`` keeps every stride-th row and column.
+    Pixels with no depth (0, NaN, inf) or outside [min_depth, max_depth] are dropped;
+    ``stride`` keeps every stride-th row and column. Formula (5) is applied to the kept
+    pixels only, with per-row and per-column factors (no full ray grid): the serving hot path.
     """
     if stride < 1:
         raise ValueError("stride must be >= 1")
-    points = backproject(depth, intrinsics)[::stride, ::stride]
-    d = depth[::stride, ::stride]
-    keep = np.isfinite(d) & (d > 0) & (d >= min_depth) & (d <= max_depth)
-    return points[keep], rgb[::stride, ::stride][keep]
+    if depth.shape != (intrinsics.height, intrinsics.width):
+        raise ValueError(
+            f"depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are for "
+            f"{intrinsics.width}x{intrinsics.height}"
+        )
+    d = depth[::stride, ::stride].astype(np.float32, copy=False)
+    with np.errstate(invalid="ignore"):
+        keep = np.isfinite(d) & (d > 0) & (d >= min_depth) & (d <= max_depth)
+    x_factor = (np.arange(0, intrinsics.width, stride, dtype=np.float32) - intrinsics.cx) / intrinsics.fx
+    y_factor = (np.arange(0, intrinsics.height, stride, dtype=np.float32) - intrinsics.cy) / intrinsics.fy
+    points = np.empty((int(keep.sum()), 3), dtype=np.float32)
+    points[:, 0] = (d * x_factor[None, :])[keep]
+    points[:, 1] = (d * y_factor[:, None])[keep]
+    points[:, 2] = d[keep]
+    return points, rgb[::stride, ::stride][keep]
 
 
 def grid_padding(height: int, width: int, multiple: int) -> tuple[int, int]:
