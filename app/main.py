@@ -28,6 +28,7 @@ EXPOSED_HEADERS = [
     "X-Depth-Range-M",
     "X-Point-Count",
     "X-Intrinsics",
+    "X-Inference-Ms",
     "Retry-After",
 ]
 

@@ -30,6 +30,7 @@ async def _run(request: Request, fn, *args) -> Result:
         raise HTTPException(503, "the model is not loaded yet", headers={"Retry-After": "1"})
     result: Result = await state.pool.run(fn, state.model, *args)
     state.metrics.inference.observe(result.inference_seconds)
+    result.headers["X-Inference-Ms"] = f"{result.inference_seconds * 1000:.1f}"
     return result
 
 

@@ -71,6 +71,7 @@ def test_depth_png_is_16_bit_millimetres_at_the_input_size(service, model):
     rgb = tum_rgb(333, 251)  # not a multiple of the generator's grid
     r = post(service, "/depth", png_bytes(rgb))
     assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+    assert 0 < float(r.headers["x-inference-ms"]) < 60_000
     assert (r.headers["x-model-name"], r.headers["x-model-version"], r.headers["x-depth-units"]) == (
         "tiny",
         "0.1.0",
