@@ -18,9 +18,8 @@ from model.card import ONNX_FILE, load_card, verify_files
 from model.checkpoint import load_generator
 from model.data.frames import Frame
 from model.data.transforms import resize_frame
-from model.inference import predict_depth
 from model.metrics import METRIC_NAMES, MetricAccumulator
-from model.runtime import OnnxGenerator
+from model.runtime import OnnxGenerator, TorchModuleGenerator
 from model.visualize import plot_pc_curve, sample_grid
 
 #: The reference paper's Table 2 (TUM RGB-D) and its mean point-cloud RMSE on TUM.
@@ -84,7 +83,8 @@ def load_predictor(path: Path) -> tuple[Callable[[np.ndarray], np.ndarray], str]
         runner = OnnxGenerator(path / ONNX_FILE, card.input_multiple)
         return (lambda rgb: card.depth_encoding.decode(runner.predict_raw(rgb))), f"{card.name} {card.version} (ONNX)"
     generator, config, state = load_generator(path)
-    return (lambda rgb: predict_depth(generator, rgb, config.depth)), f"rgb2cloud ({path.name}, step {state['step']})"
+    runner = TorchModuleGenerator(generator, config.generator.input_multiple)
+    return (lambda rgb: config.depth.decode(runner.predict_raw(rgb))), f"rgb2cloud ({path.name}, step {state['step']})"
 
 
 def _fmt(value: float | None) -> str:

@@ -25,9 +25,8 @@ from model.card import ONNX_FILE, TORCHSCRIPT_FILE, Camera, DataRef, Metrics, Mo
 from model.checkpoint import load_generator
 from model.codec import INPUT_ENCODING
 from model.data.sources import describe, open_source
-from model.inference import predict_raw
 from model.networks import GlobalGenerator
-from model.runtime import OnnxGenerator, TorchScriptGenerator
+from model.runtime import OnnxGenerator, TorchModuleGenerator, TorchScriptGenerator
 
 PARITY_TOLERANCE = 1e-4
 OPSET = 18
@@ -82,10 +81,11 @@ def check_parity(generator: GlobalGenerator, folder: Path, image: np.ndarray) ->
         "onnx": OnnxGenerator(folder / ONNX_FILE, m),
         "torchscript": TorchScriptGenerator(folder / TORCHSCRIPT_FILE, m),
     }
+    reference = TorchModuleGenerator(generator.eval(), m)
     report = {}
     for h, w in parity_sizes(image.shape[0], image.shape[1], m):
         rgb = np.asarray(Image.fromarray(image).resize((w, h), Image.Resampling.BILINEAR))
-        eager = predict_raw(generator.eval(), rgb)
+        eager = reference.predict_raw(rgb)
         for name, runner in runners.items():
             out = runner.predict_raw(rgb)
             if out.shape != (h, w):

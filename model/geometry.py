@@ -59,25 +59,15 @@ class Intrinsics:
 KINECT_DEFAULT = Intrinsics(fx=535.4, fy=539.2, cx=320.1, cy=247.6, width=640, height=480)
 
 
-def pixel_rays(intrinsics: Intrinsics) -> np.ndarray:
-    """Per-pixel ray directions with z = 1, shape (H, W, 3), float32."""
-    u = np.arange(intrinsics.width, dtype=np.float32)
-    v = np.arange(intrinsics.height, dtype=np.float32)
-    rays = np.empty((intrinsics.height, intrinsics.width, 3), dtype=np.float32)
-    rays[..., 0] = ((u - intrinsics.cx) / intrinsics.fx)[None, :]
-    rays[..., 1] = ((v - intrinsics.cy) / intrinsics.fy)[:, None]
-    rays[..., 2] = 1.0
-    return rays
+def ray_factors(intrinsics: Intrinsics, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Formula (5)'s per-column (u - cx) / fx and per-row (v - cy) / fy, every stride-th pixel.
 
-
-def backproject(depth: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
-    """Formula (5) at every pixel: an (H, W, 3) float32 array of camera-frame points."""
-    if depth.shape != (intrinsics.height, intrinsics.width):
-        raise ValueError(
-            f"depth is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are for "
-            f"{intrinsics.width}x{intrinsics.height}"
-        )
-    return pixel_rays(intrinsics) * depth.astype(np.float32, copy=False)[..., None]
+    A point is (d * x_factor[u], d * y_factor[v], d): one multiply per axis, no
+    full ray grid.
+    """
+    x = (np.arange(0, intrinsics.width, stride, dtype=np.float32) - intrinsics.cx) / intrinsics.fx
+    y = (np.arange(0, intrinsics.height, stride, dtype=np.float32) - intrinsics.cy) / intrinsics.fy
+    return x, y
 
 
 def point_cloud(
@@ -89,11 +79,10 @@ def point_cloud(
     min_depth: float = 0.0,
     max_depth: float = float("inf"),
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Valid points and their colours: ((N, 3) float32 metres, (N, 3) uint8), row-major order.
+    """Formula (5) at the valid pixels: ((N, 3) float32 metres, (N, 3) uint8 colours), row-major.
 
     Pixels with no depth (0, NaN, inf) or outside [min_depth, max_depth] are dropped;
-    ``stride`` keeps every stride-th row and column. Formula (5) is applied to the kept
-    pixels only, with per-row and per-column factors (no full ray grid): the serving hot path.
+    ``stride`` keeps every stride-th row and column.
     """
     if stride < 1:
         raise ValueError("stride must be >= 1")
@@ -105,8 +94,7 @@ def point_cloud(
     d = depth[::stride, ::stride].astype(np.float32, copy=False)
     with np.errstate(invalid="ignore"):
         keep = np.isfinite(d) & (d > 0) & (d >= min_depth) & (d <= max_depth)
-    x_factor = (np.arange(0, intrinsics.width, stride, dtype=np.float32) - intrinsics.cx) / intrinsics.fx
-    y_factor = (np.arange(0, intrinsics.height, stride, dtype=np.float32) - intrinsics.cy) / intrinsics.fy
+    x_factor, y_factor = ray_factors(intrinsics, stride)
     points = np.empty((int(keep.sum()), 3), dtype=np.float32)
     points[:, 0] = (d * x_factor[None, :])[keep]
     points[:, 1] = (d * y_factor[:, None])[keep]

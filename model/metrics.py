@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from model.geometry import Intrinsics, pixel_rays
+from model.geometry import Intrinsics, ray_factors
 
 METRIC_NAMES = ("rel", "rmse", "log10", "delta1", "delta2", "delta3")
 
@@ -34,7 +34,8 @@ def valid_mask(gt: np.ndarray, min_m: float, max_m: float) -> np.ndarray:
 def point_cloud_rmse(pred: np.ndarray, gt: np.ndarray, intrinsics: Intrinsics, valid: np.ndarray) -> float:
     """RMSE of the 3D distance between predicted and true points at the same pixels."""
     # Both points lie on the same pixel ray, so the distance is |d - d*| * |ray|.
-    ray_length = np.linalg.norm(pixel_rays(intrinsics), axis=-1)
+    x_factor, y_factor = ray_factors(intrinsics)
+    ray_length = np.sqrt(x_factor[None, :] ** 2 + y_factor[:, None] ** 2 + 1.0)
     distance = np.abs(pred - gt)[valid] * ray_length[valid]
     return float(np.sqrt(np.mean(distance.astype(np.float64) ** 2)))
 

@@ -1,11 +1,11 @@
-"""Run an exported generator on one image: ONNX Runtime, or TorchScript.
+"""Run a generator on one image: ONNX Runtime, TorchScript, or an eager torch module.
 
-Both share one contract (``ExportedGenerator``): HxWx3 uint8 in, HxW float32 of
+All share one contract (``ExportedGenerator``): HxWx3 uint8 in, HxW float32 of
 the generator's tanh output back, at the input's size. Padding to the
 generator's grid and cropping back happen here, once, for every caller: the
-export parity check, evaluation of a published version, and the service.
+trainer's validation, evaluation, the export parity check and the service.
 
-The ONNX path imports no torch; TorchScript imports it only when constructed.
+The ONNX path imports no torch; the torch runners import it only when constructed.
 """
 
 from __future__ import annotations
@@ -45,21 +45,31 @@ class OnnxGenerator:
         return np.ascontiguousarray(y[0, 0, :h, :w], dtype=np.float32)
 
 
-class TorchScriptGenerator:
-    """A TorchScript generator (needs the ``train`` extra, which brings torch)."""
+class TorchModuleGenerator:
+    """A torch module (eager ``GlobalGenerator`` or TorchScript) on whatever device it lives on."""
+
+    def __init__(self, module, multiple: int):
+        import torch
+
+        self._torch = torch
+        self.module = module
+        self.multiple = multiple
+
+    def predict_raw(self, rgb: np.ndarray) -> np.ndarray:
+        h, w = rgb.shape[:2]
+        x = self._torch.from_numpy(rgb_to_input(pad_to_multiple(rgb, self.multiple)))
+        device = next(self.module.parameters()).device
+        with self._torch.inference_mode():
+            y = self.module(x.to(device))
+        return y[0, 0, :h, :w].float().cpu().numpy()
+
+
+class TorchScriptGenerator(TorchModuleGenerator):
+    """A TorchScript file on the CPU (needs the ``train`` extra, which brings torch)."""
 
     def __init__(self, path: Path, multiple: int, threads: int = 0):
         import torch
 
         if threads:
             torch.set_num_threads(threads)
-        self._torch = torch
-        self.module = torch.jit.load(str(path), map_location="cpu").eval()
-        self.multiple = multiple
-
-    def predict_raw(self, rgb: np.ndarray) -> np.ndarray:
-        h, w = rgb.shape[:2]
-        x = self._torch.from_numpy(rgb_to_input(pad_to_multiple(rgb, self.multiple)))
-        with self._torch.inference_mode():
-            y = self.module(x)
-        return y[0, 0, :h, :w].numpy().astype(np.float32)
+        super().__init__(torch.jit.load(str(path), map_location="cpu").eval(), multiple)

@@ -35,10 +35,10 @@ from model.config import RunConfig
 from model.data.dataset import ConcatFrames, StepBatchSampler, TrainingSet
 from model.data.sources import open_source
 from model.evaluate import evaluate_frames
-from model.inference import predict_depth
 from model.losses import GANLoss, feature_matching, fill_holes, masked_l1, patch_weights
 from model.machine import cpu_description
 from model.networks import GlobalGenerator, MultiscaleDiscriminator
+from model.runtime import TorchModuleGenerator
 from model.visualize import sample_grid
 
 #: Config sections that define the networks and their targets; resume refuses to change them.
@@ -204,8 +204,9 @@ def train(config: RunConfig, resume: bool = False) -> dict:
         if val_frames is None:
             return None
         net = _unwrap(generator).eval()
+        runner = TorchModuleGenerator(net, config.generator.input_multiple)
         result, _, grid = evaluate_frames(
-            lambda rgb: predict_depth(net, rgb, config.depth),
+            lambda rgb: config.depth.decode(runner.predict_raw(rgb)),
             val_frames,
             min_m=config.data.eval_min_m,
             max_m=config.data.eval_max_m,
@@ -272,7 +273,7 @@ def train(config: RunConfig, resume: bool = False) -> dict:
             pairs = torch.cat([torch.cat([x, fake.detach()], 1), torch.cat([x, real_filled], 1)], 0)
             pred_fake, pred_real = _split(discriminator(pairs), n)
             loss_d_fake = gan_loss(pred_fake, False)
-            loss_d_real = gan_loss(pred_real, True, patch_weights(valid, pred_real))
+            loss_d_real = gan_loss(pred_real, True, weights)  # the same cells as in the G step
             loss_d = 0.5 * (loss_d_fake + loss_d_real)
         opt_d.zero_grad(set_to_none=True)
         scaler.scale(loss_d).backward()

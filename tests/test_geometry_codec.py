@@ -9,15 +9,18 @@ from model.codec import DepthEncoding, rgb_to_input
 from model.config import TransformConfig
 from model.data.frames import Frame
 from model.data.transforms import TransformParams, apply_params, sample_params
-from model.geometry import KINECT_DEFAULT, Intrinsics, backproject, pad_to_multiple, point_cloud
+from model.geometry import KINECT_DEFAULT, Intrinsics, pad_to_multiple, point_cloud
 
 
-def test_backproject_is_formula_5():
+def test_point_cloud_is_formula_5():
     k = KINECT_DEFAULT
     depth = np.full((k.height, k.width), 2.0, dtype=np.float32)
-    points = backproject(depth, k)
+    points, colours = point_cloud(depth, np.zeros((k.height, k.width, 3), np.uint8), k)
     u, v = 100, 400
-    np.testing.assert_allclose(points[v, u], [2.0 * (u - 320.1) / 535.4, 2.0 * (v - 247.6) / 539.2, 2.0], rtol=1e-6)
+    assert len(points) == k.width * k.height and colours.shape == points.shape
+    np.testing.assert_allclose(
+        points[v * k.width + u], [2.0 * (u - 320.1) / 535.4, 2.0 * (v - 247.6) / 539.2, 2.0], rtol=1e-6
+    )
 
 
 def test_point_cloud_drops_invalid_and_clips():
