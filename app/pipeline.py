@@ -89,11 +89,9 @@ def point_cloud_ply(
     rgb = decode_image(data, max_pixels)
     depth, seconds = infer(model, rgb, infer_pixels)
     k = camera_for(model, rgb.shape[1], rgb.shape[0], options)
-    points, colours = point_cloud(
-        depth, rgb, k, stride=options.stride, min_depth=options.min_depth, max_depth=options.max_depth
-    )
+    points = point_cloud(depth, rgb, k, stride=options.stride, min_depth=options.min_depth, max_depth=options.max_depth)
     headers = model_headers(model) | {
         "X-Point-Count": str(len(points)),
         "X-Intrinsics": f"{k.fx:.4f},{k.fy:.4f},{k.cx:.4f},{k.cy:.4f}",
     }
-    return Result(encode_ply(points, colours), headers, seconds)
+    return Result(encode_ply(points), headers, seconds)

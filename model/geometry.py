@@ -70,6 +70,11 @@ def ray_factors(intrinsics: Intrinsics, stride: int = 1) -> tuple[np.ndarray, np
     return x, y
 
 
+#: One coloured point: metres, then 8-bit colour. It is also the binary PLY vertex layout,
+#: so the service writes a cloud to PLY with one copy.
+POINT = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+
+
 def point_cloud(
     depth: np.ndarray,
     rgb: np.ndarray,
@@ -78,11 +83,13 @@ def point_cloud(
     stride: int = 1,
     min_depth: float = 0.0,
     max_depth: float = float("inf"),
-) -> tuple[np.ndarray, np.ndarray]:
-    """Formula (5) at the valid pixels: ((N, 3) float32 metres, (N, 3) uint8 colours), row-major.
+) -> np.ndarray:
+    """Formula (5) at the valid pixels: an (N,) array of ``POINT`` records, row-major.
 
     Pixels with no depth (0, NaN, inf) or outside [min_depth, max_depth] are dropped;
-    ``stride`` keeps every stride-th row and column.
+    ``stride`` keeps every stride-th row and column. The whole grid is filled
+    field by field and the valid records are gathered once: about twice as fast
+    as gathering each coordinate and colour on its own (``bench/serving.py``).
     """
     if stride < 1:
         raise ValueError("stride must be >= 1")
@@ -92,14 +99,30 @@ def point_cloud(
             f"{intrinsics.width}x{intrinsics.height}"
         )
     d = depth[::stride, ::stride].astype(np.float32, copy=False)
+    # Two comparisons do it all: NaN fails both, 0 fails the first, inf fails the second.
+    lowest = max(min_depth, float(np.finfo(np.float32).tiny))
+    highest = min(max_depth, float(np.finfo(np.float32).max))
     with np.errstate(invalid="ignore"):
-        keep = np.isfinite(d) & (d > 0) & (d >= min_depth) & (d <= max_depth)
+        keep = (d >= lowest) & (d <= highest)
     x_factor, y_factor = ray_factors(intrinsics, stride)
-    points = np.empty((int(keep.sum()), 3), dtype=np.float32)
-    points[:, 0] = (d * x_factor[None, :])[keep]
-    points[:, 1] = (d * y_factor[:, None])[keep]
-    points[:, 2] = d[keep]
-    return points, rgb[::stride, ::stride][keep]
+    grid = np.empty(d.shape, dtype=POINT)
+    np.multiply(d, x_factor[None, :], out=grid["x"])
+    np.multiply(d, y_factor[:, None], out=grid["y"])
+    grid["z"] = d
+    pixels = rgb[::stride, ::stride]
+    for i, channel in enumerate(("red", "green", "blue")):
+        grid[channel] = pixels[..., i]
+    return grid[keep]
+
+
+def xyz(points: np.ndarray) -> np.ndarray:
+    """(N, 3) float32 metres from ``POINT`` records."""
+    return np.stack([points["x"], points["y"], points["z"]], axis=-1)
+
+
+def colours(points: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 colours from ``POINT`` records."""
+    return np.stack([points["red"], points["green"], points["blue"]], axis=-1)
 
 
 def grid_padding(height: int, width: int, multiple: int) -> tuple[int, int]:

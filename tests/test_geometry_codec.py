@@ -9,29 +9,33 @@ from model.codec import DepthEncoding, rgb_to_input
 from model.config import TransformConfig
 from model.data.frames import Frame
 from model.data.transforms import TransformParams, apply_params, sample_params
-from model.geometry import KINECT_DEFAULT, Intrinsics, pad_to_multiple, point_cloud
+from model.geometry import KINECT_DEFAULT, POINT, Intrinsics, colours, pad_to_multiple, point_cloud, xyz
 
 
 def test_point_cloud_is_formula_5():
     k = KINECT_DEFAULT
     depth = np.full((k.height, k.width), 2.0, dtype=np.float32)
-    points, colours = point_cloud(depth, np.zeros((k.height, k.width, 3), np.uint8), k)
+    rgb = np.zeros((k.height, k.width, 3), np.uint8)
+    rgb[400, 100] = (10, 20, 30)
+    cloud = point_cloud(depth, rgb, k)
     u, v = 100, 400
-    assert len(points) == k.width * k.height and colours.shape == points.shape
+    assert cloud.dtype == POINT and len(cloud) == k.width * k.height
     np.testing.assert_allclose(
-        points[v * k.width + u], [2.0 * (u - 320.1) / 535.4, 2.0 * (v - 247.6) / 539.2, 2.0], rtol=1e-6
+        xyz(cloud)[v * k.width + u], [2.0 * (u - 320.1) / 535.4, 2.0 * (v - 247.6) / 539.2, 2.0], rtol=1e-6
     )
+    assert colours(cloud)[v * k.width + u].tolist() == [10, 20, 30]
 
 
 def test_point_cloud_drops_invalid_and_clips():
     k = Intrinsics(10, 10, 1.5, 1.5, 4, 4)
     depth = np.array([[0, 1, 2, 3], [4, 5, np.nan, 7], [1, 1, 1, 1], [1, 1, 1, 1]], dtype=np.float32)
     rgb = np.arange(48, dtype=np.uint8).reshape(4, 4, 3)
-    points, colours = point_cloud(depth, rgb, k, min_depth=1.5, max_depth=5)
-    np.testing.assert_allclose(sorted(points[:, 2]), [2, 3, 4, 5])
-    assert colours.dtype == np.uint8 and len(colours) == 4
-    points, _ = point_cloud(depth, rgb, k, stride=2)
-    assert len(points) == 3  # (0,0) is missing; (0,2), (2,0), (2,2) remain
+    cloud = point_cloud(depth, rgb, k, min_depth=1.5, max_depth=5)
+    np.testing.assert_allclose(sorted(cloud["z"]), [2, 3, 4, 5])
+    assert colours(cloud)[cloud["z"] == 2].tolist() == [rgb[0, 2].tolist()]
+    depth[1, 3] = np.inf
+    assert 7 not in point_cloud(depth, rgb, k)["z"] and not np.isinf(point_cloud(depth, rgb, k)["z"]).any()
+    assert len(point_cloud(depth, rgb, k, stride=2)) == 3  # (0,0) is missing; (0,2), (2,0), (2,2) remain
 
 
 def test_resize_keeps_rays():

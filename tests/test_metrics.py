@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from model.geometry import Intrinsics, point_cloud
+from model.geometry import Intrinsics, point_cloud, xyz
 from model.metrics import MetricAccumulator, pc_rmse_curve, point_cloud_rmse
 
 
@@ -42,7 +42,7 @@ def test_point_cloud_rmse_is_3d_distance_at_the_same_pixels():
     # pixel (0,0): ray (0,0,1), distance 1; pixel (1,0): ray (1,0,1), distance 2 * sqrt(2)
     assert point_cloud_rmse(pred, gt, k, valid) == pytest.approx(math.sqrt((1 + 8) / 2))
     colours = np.zeros((1, 2, 3), np.uint8)
-    explicit = np.linalg.norm(point_cloud(pred, colours, k)[0] - point_cloud(gt, colours, k)[0], axis=-1)
+    explicit = np.linalg.norm(xyz(point_cloud(pred, colours, k)) - xyz(point_cloud(gt, colours, k)), axis=-1)
     assert point_cloud_rmse(pred, gt, k, valid) == pytest.approx(np.sqrt(np.mean(explicit**2)))
 
 
