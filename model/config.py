@@ -35,11 +35,23 @@ class GeneratorConfig(_Strict):
         lt=1.0,
         description="the paper's noise input Z, as pix2pix: dropout in the residual blocks, training only",
     )
+    work_scale: int = Field(
+        1,
+        ge=1,
+        le=8,
+        description="beyond the paper: the network runs at 1/work_scale of the input's resolution "
+        "(average pool in, bilinear upsample out); training feeds images already at that scale",
+    )
+
+    @property
+    def core_multiple(self) -> int:
+        """Height and width the network itself needs, at its working scale."""
+        return 2**self.n_downsample
 
     @property
     def input_multiple(self) -> int:
         """Input height and width must be multiples of this."""
-        return 2**self.n_downsample
+        return self.core_multiple * self.work_scale
 
     def weight_shapes(self) -> list[tuple[int, ...]]:
         """Every convolution's weight shape, in network order, without building the network.
@@ -156,7 +168,7 @@ class RunConfig(_Strict):
 
     @model_validator(mode="after")
     def _crop_fits_grid(self) -> RunConfig:
-        m = self.generator.input_multiple
+        m = self.generator.core_multiple  # training crops are already at the working scale
         h, w = self.data.transform.size
         if h % m or w % m:
             raise ValueError(f"data.transform.size {h}x{w} must be a multiple of {m} (2^n_downsample)")

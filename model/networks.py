@@ -7,6 +7,7 @@ description. Instance norm without affine parameters, as pix2pixHD uses.
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from model.config import DiscriminatorConfig, GeneratorConfig
@@ -44,13 +45,20 @@ class GlobalGenerator(nn.Module):
     """7x7 front-end, n_downsample stride-2 convs, n_blocks residual blocks,
     n_downsample transposed convs, 7x7 output conv, tanh.
 
-    Height and width must be multiples of ``2 ** n_downsample``; callers pad
+    Height and width must be multiples of ``config.input_multiple``; callers pad
     (``model.geometry.pad_to_multiple``) and crop back.
+
+    With ``work_scale`` k > 1 the network sees a k-times average-pooled image and
+    its output is bilinearly upsampled back: a 640x480 photo costs what a
+    320x240 one does, and the net sees the whole frame instead of a crop. The
+    trainer feeds frames already at the working scale (``at_working_scale``), so
+    the losses and the discriminators work where the network does.
     """
 
     def __init__(self, config: GeneratorConfig):
         super().__init__()
         self.config = config
+        self.work_scale = config.work_scale  # a plain int, so TorchScript can read it
         ngf = config.ngf
         layers: list[nn.Module] = [
             nn.ReflectionPad2d(3),
@@ -73,8 +81,12 @@ class GlobalGenerator(nn.Module):
         layers += [nn.ReflectionPad2d(3), nn.Conv2d(ngf, config.output_nc, 7), nn.Tanh()]
         self.model = nn.Sequential(*layers)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.model(x)
+    def forward(self, x: torch.Tensor, at_working_scale: bool = False) -> torch.Tensor:
+        k = self.work_scale
+        if k == 1 or at_working_scale:
+            return self.model(x)
+        y = self.model(F.avg_pool2d(x, k))
+        return F.interpolate(y, scale_factor=float(k), mode="bilinear", align_corners=False)
 
 
 class NLayerDiscriminator(nn.Module):

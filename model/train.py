@@ -253,7 +253,7 @@ def train(config: RunConfig, resume: bool = False) -> dict:
 
         # Generator: fool D and match its features on real pairs.
         with torch.autocast(device.type, dtype=amp_dtype, enabled=use_amp):
-            fake = generator(x)
+            fake = generator(x, at_working_scale=True)
             real_filled = fill_holes(real, fake, valid)
             pairs = torch.cat([torch.cat([x, fake], 1), torch.cat([x, real_filled], 1)], 0)
             pred_fake, pred_real = _split(discriminator(pairs), n)

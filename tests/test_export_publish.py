@@ -78,7 +78,7 @@ def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_check
     card = load_card(folder)
     verify_files(folder, card)
     assert set(card.files) == {ONNX_FILE, TORCHSCRIPT_FILE}
-    assert card.generator.ngf == 8 and card.input_multiple == 4
+    assert card.generator.ngf == 8 and card.input_multiple == 8
     assert card.depth_encoding.kind == "log"
     assert (card.camera.fx, card.camera.cx, card.camera.width) == (585.0, 320.0, 640)
     assert "non-commercial" in card.training.data[0].licence and card.training.data[0].frames == "0-3"

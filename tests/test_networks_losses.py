@@ -25,6 +25,21 @@ def test_generator_keeps_grid_sizes(n_downsample, size):
     assert y.abs().max() <= 1.0  # tanh
 
 
+def test_work_scale_runs_the_network_on_a_pooled_image_and_upsamples_back():
+    config = GeneratorConfig(ngf=4, n_downsample=2, n_blocks=1, work_scale=2)
+    assert (config.core_multiple, config.input_multiple) == (4, 8)
+    g = GlobalGenerator(config).eval()
+    x = torch.randn(1, 3, 24, 40)
+    y = g(x)
+    assert y.shape == (1, 1, 24, 40)
+    core = g(torch.nn.functional.avg_pool2d(x, 2), at_working_scale=True)
+    assert core.shape == (1, 1, 12, 20)
+    expected = torch.nn.functional.interpolate(core, scale_factor=2.0, mode="bilinear", align_corners=False)
+    torch.testing.assert_close(y, expected)
+    # The trainer's crops need only the core grid: 12x20 is not a multiple of 8 but of 4.
+    assert g(torch.randn(1, 3, 12, 20), at_working_scale=True).shape == (1, 1, 12, 20)
+
+
 def test_generator_layout_follows_the_paper():
     g = GlobalGenerator(GeneratorConfig(ngf=4, n_downsample=2, n_blocks=3))
     layers = list(g.model)
