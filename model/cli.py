@@ -1,4 +1,4 @@
-"""The ``rgb2cloud`` command line: train, evaluate, export.
+"""The ``rgb2cloud`` command line: train, evaluate, export, baselines, report, client.
 
 Heavy imports happen inside each command, so ``rgb2cloud --help`` is instant and
 the torch-free parts of the project never pay for torch.
@@ -121,6 +121,29 @@ def baselines(
             "metrics": results,
         }
         (out / "baselines.json").write_text(json.dumps(payload, indent=2) + "\n")
+
+
+@app.command()
+def report(
+    model: Annotated[Path, typer.Argument(help="the published version folder to report on", exists=True)],
+    root: Annotated[Path, typer.Option(help="7-Scenes sequence folder", exists=True, file_okay=False)],
+    tum_dir: Annotated[Path, typer.Option(help="folder with TUM_color.png and TUM_depth.png", exists=True)],
+    compare: Annotated[list[str], typer.Option(help="LABEL=PATH: a checkpoint or version to score beside it")] = [],  # noqa: B006
+    train_frames: Annotated[str, typer.Option(help="frames the baselines are fitted on")] = "0-799",
+    test_frames: Annotated[str, typer.Option(help="frames everything is scored on")] = "850-999",
+    out: Annotated[Path, typer.Option(help="folder for quality.md and quality/")] = Path("docs"),
+) -> None:
+    """Write quality.md: metrics beside the paper and the baselines, curve, samples, ablation, TUM."""
+    from model.report import ReportInputs, build_report
+
+    pairs = {}
+    for item in compare:
+        name, sep, path = item.rpartition("=")
+        if not sep or not name or not Path(path).exists():
+            raise typer.BadParameter(f"--compare {item!r}: expected LABEL=PATH to an existing checkpoint or version")
+        pairs[name] = Path(path)
+    inputs = ReportInputs(model, root, tum_dir, pairs, out, train_frames=train_frames, test_frames=test_frames)
+    typer.echo(f"wrote {build_report(inputs)}")
 
 
 @app.command()

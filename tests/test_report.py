@@ -1,0 +1,74 @@
+"""``rgb2cloud report``: quality.md from a published model, a compared checkpoint and real frames."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from conftest import SEVEN_SCENES, TUM_FRAME, run_cli
+from PIL import Image
+
+from model.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
+from model.render import render_points
+from model.report import config_diff
+
+
+def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, trained_checkpoint, tmp_path):
+    out = tmp_path / "docs"
+    run_cli(
+        "report",
+        str(registry / "tiny" / "0.1.0"),
+        "--root",
+        str(SEVEN_SCENES),
+        "--tum-dir",
+        str(TUM_FRAME),
+        "--compare",
+        f"eager checkpoint={trained_checkpoint}",
+        "--train-frames",
+        "0-3",
+        "--test-frames",
+        "850-851",
+        "--out",
+        str(out),
+    )
+    text = (out / "quality.md").read_text()
+    for row in ("tiny 0.1.0 (ONNX)", "eager checkpoint", "baseline: constant", "per-pixel train median", "paper (TUM"):
+        assert row in text
+    assert "non-commercial" in text and "850-851" in text
+    # The ONNX export and the eager checkpoint it came from score the same.
+    rows = json.loads((out / "quality" / "metrics.json").read_text())["rows"]
+    published = next(v for k, v in rows.items() if "tiny" in k)
+    assert abs(published["rel"] - rows["eager checkpoint"]["rel"]) < 1e-4
+    assert published["images"] == 2
+    # Same training config apart from the output folder.
+    assert "(same training config)" in text
+    for name in ("pc_rmse_curve.png", "tum-sample.png", "tum-pointcloud.png", "local/7scenes-samples.png"):
+        assert Image.open(out / "quality" / name).size[0] > 100
+
+
+def test_config_diff_names_changed_leaves():
+    base = {"loss": {"l1_depth": 100.0, "gan_mode": "lsgan"}, "train": {"out_dir": "a", "steps": 10}}
+    other = {"loss": {"l1_depth": 0.0, "gan_mode": "lsgan"}, "train": {"out_dir": "b", "steps": 10}}
+    assert config_diff(base, other) == ["`loss.l1_depth`: 100.0 → 0.0"]
+
+
+def test_render_turns_about_the_centre_and_nearest_point_wins():
+    depth = np.full((48, 64), 2.0, dtype=np.float32)
+    rgb = np.zeros((48, 64, 3), dtype=np.uint8)
+    rgb[..., 0] = 200
+    intrinsics = KINECT_DEFAULT.resized(64, 48)
+    cloud = point_cloud(depth, rgb, intrinsics)
+    points = xyz(cloud)
+    front = render_points(points, colours(cloud), np.median(points, axis=0), yaw_deg=0, pitch_deg=0, size=(60, 80))
+    assert (front[..., 0] == 200).any() and (front == 255).all(axis=-1).any()  # the plane and background
+    # A nearer blue point in front of the plane hides it at its pixel.
+    near = np.array([[0.0, 0.0, 1.0]], dtype=np.float32)
+    image = render_points(
+        np.concatenate([points, near]),
+        np.concatenate([colours(cloud), [[0, 0, 255]]]).astype(np.uint8),
+        np.zeros(3),
+        yaw_deg=0,
+        pitch_deg=0,
+        size=(60, 80),
+    )
+    assert tuple(image[30, 40]) == (0, 0, 255)
