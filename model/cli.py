@@ -127,13 +127,13 @@ def baselines(
 def report(
     model: Annotated[Path, typer.Argument(help="the published version folder to report on", exists=True)],
     root: Annotated[Path, typer.Option(help="7-Scenes sequence folder", exists=True, file_okay=False)],
-    tum_dir: Annotated[Path, typer.Option(help="folder with TUM_color.png and TUM_depth.png", exists=True)],
+    unseen: Annotated[Path, typer.Option(help="CSV manifest of a scene never trained on", exists=True, dir_okay=False)],
     compare: Annotated[list[str], typer.Option(help="LABEL=PATH: a checkpoint or version to score beside it")] = [],  # noqa: B006
     train_frames: Annotated[str, typer.Option(help="frames the baselines are fitted on")] = "0-799",
     test_frames: Annotated[str, typer.Option(help="frames everything is scored on")] = "850-999",
     out: Annotated[Path, typer.Option(help="folder for quality.md and quality/")] = Path("docs"),
 ) -> None:
-    """Write quality.md: metrics beside the paper and the baselines, curve, samples, ablation, TUM."""
+    """Write quality.md: metrics beside the paper and baselines, curve, samples, ablation, an unseen scene."""
     from model.report import ReportInputs, build_report
 
     pairs = {}
@@ -142,7 +142,7 @@ def report(
         if not sep or not name or not Path(path).exists():
             raise typer.BadParameter(f"--compare {item!r}: expected LABEL=PATH to an existing checkpoint or version")
         pairs[name] = Path(path)
-    inputs = ReportInputs(model, root, tum_dir, pairs, out, train_frames=train_frames, test_frames=test_frames)
+    inputs = ReportInputs(model, root, unseen, pairs, out, train_frames=train_frames, test_frames=test_frames)
     typer.echo(f"wrote {build_report(inputs)}")
 
 

@@ -1,7 +1,7 @@
 """``docs/quality.md`` and its figures, from one command: every number in it is computed here.
 
     rgb2cloud report weights/rgb2cloud-7scenes/1.0.0 \\
-        --root ../shared/data/7scenes-redkitchen --tum-dir ../shared/data/tum-fr3-office \\
+        --root ../shared/data/7scenes-redkitchen --unseen configs/tum-fr3-office.csv \\
         --compare "paper objective only=runs/7scenes-default-paper-objective/checkpoints/best.pt"
 
 The published model is scored the way the service runs it (ONNX Runtime, after
@@ -11,7 +11,8 @@ against the published model's, so an ablation row says exactly what changed.
 
 Figures that contain 7-Scenes pixels (RGB or its depth) go to ``quality/local/``,
 which git ignores: the dataset is read in place and never copied into the
-repository. TUM figures (CC BY 4.0, credited) are committed.
+repository. Figures of the unseen scene (``--unseen``, a CSV manifest; ours is the
+TUM frame, CC BY 4.0, credited) are committed.
 """
 
 from __future__ import annotations
@@ -26,11 +27,12 @@ from PIL import Image
 
 from model.baselines import fit_baselines, score_baselines
 from model.card import ModelCard, load_card
-from model.data.frames import Frame, read_depth_png, read_rgb
+from model.data.frames import Frame
+from model.data.manifest import ManifestReader
 from model.data.sevenscenes import SevenScenesReader
 from model.evaluate import PAPER_TUM, beats, evaluate_frames, load_predictor, markdown_table
-from model.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
-from model.metrics import METRIC_NAMES, MetricAccumulator
+from model.geometry import colours, point_cloud, xyz
+from model.metrics import METRIC_NAMES
 from model.render import render_points
 from model.visualize import plot_pc_curve, sample_grid
 
@@ -45,21 +47,13 @@ TUM_LICENCE = "TUM RGB-D (CC BY 4.0), via the Open3D test data (MIT)"
 class ReportInputs:
     model: Path
     root: Path
-    tum_dir: Path
+    unseen: Path
     compare: dict[str, Path]
     out: Path
     train_frames: str = "0-799"
     test_frames: str = "850-999"
     min_m: float = 0.1
     max_m: float = 10.0
-
-
-def read_tum_pair(folder: Path) -> Frame:
-    """The single TUM frame: TUM_color.png + TUM_depth.png (5000 units per metre), fr3 intrinsics."""
-    rgb = read_rgb(folder / "TUM_color.png")
-    depth = read_depth_png(folder / "TUM_depth.png", units_per_metre=5000.0)
-    intrinsics = KINECT_DEFAULT.resized(depth.shape[1], depth.shape[0])
-    return Frame(rgb, depth, intrinsics, "tum-fr3-office/TUM")
 
 
 def training_config(path: Path) -> dict:
@@ -161,18 +155,16 @@ def build_report(inputs: ReportInputs) -> Path:
     middle = test[len(test) // 2]
     render_pair(predict(middle.rgb), middle).save(local / "7scenes-pointcloud.png")
 
-    tum = read_tum_pair(inputs.tum_dir)
-    tum_pred = predict(tum.rgb)
-    tum_acc = MetricAccumulator(min_m=inputs.min_m, max_m=inputs.max_m)
-    tum_acc.add(tum_pred, tum.depth, tum.intrinsics, tum.name)
-    tum_result = tum_acc.result()
-    sample_grid([(tum.rgb, tum_pred, tum.depth)]).save(figures / "tum-sample.png")
-    render_pair(tum_pred, tum).save(figures / "tum-pointcloud.png")
-    valid_gt = tum.depth[tum.depth > 0]
-    tum_scale = float(np.median(valid_gt) / np.median(tum_pred[tum.depth > 0]))
+    unseen = ManifestReader(inputs.unseen)
+    unseen_result, _, unseen_grid = _score(predict, unseen, inputs, samples=1)
+    _, unseen_pred, unseen_gt = unseen_grid[0]
+    sample_grid(unseen_grid).save(figures / "unseen-sample.png")
+    render_pair(unseen_pred, unseen[0]).save(figures / "unseen-pointcloud.png")
+    has_depth = unseen_gt > 0
+    unseen_scale = float(np.median(unseen_gt[has_depth]) / np.median(unseen_pred[has_depth]))
 
     (figures / "metrics.json").write_text(
-        json.dumps({"split": split, "rows": rows, "tum": tum_result, "per_image": per_image}, indent=2) + "\n"
+        json.dumps({"split": split, "rows": rows, "unseen": unseen_result, "per_image": per_image}, indent=2) + "\n"
     )
     lines = [
         "# Quality of the bundled default model",
@@ -209,7 +201,7 @@ def build_report(inputs: ReportInputs) -> Path:
         "frames) and `quality/local/7scenes-pointcloud.png` (a predicted cloud beside the ground-truth one, "
         "from a virtual camera turned 35° about the cloud's centre). They hold 7-Scenes pixels, so they stay "
         "on your machine: the dataset is read in place and never copied into the repository. The same views "
-        "of the TUM frame are in the next section.",
+        "of the unseen frame are in the next section.",
         "",
         "## Ablation: the paper's objective against our additions",
         "",
@@ -220,22 +212,24 @@ def build_report(inputs: ReportInputs) -> Path:
         "",
         "## Generalisation: a room it never saw",
         "",
-        f"The single real TUM fr3 office frame ({TUM_LICENCE}), with the TUM fr3 intrinsics:",
+        f"`{inputs.unseen}` ({len(unseen)} frame(s); ours is the real TUM fr3 office frame, {TUM_LICENCE}), "
+        "with its own camera's intrinsics:",
         "",
-        markdown_table({label: tum_result, "paper (TUM, Table 2; trained on TUM)": PAPER_TUM}),
+        markdown_table({label: unseen_result, "paper (TUM, Table 2; trained on TUM)": PAPER_TUM}),
         "",
-        f"The median of truth / prediction is {tum_scale:.2f}. This is one frame, from another camera, in another "
-        "room: a model trained on 760 frames of one kitchen has learnt that kitchen, and its absolute scale "
-        "does not carry over. Treat depth on your own scenes as relative until you fine-tune on a few of your "
-        "own RGB-D frames (`rgb2cloud train` reads TUM, NYU, 7-Scenes and CSV manifests).",
+        f"On the first frame the median of truth / prediction is {unseen_scale:.2f}. A model trained on 760 "
+        "frames of one kitchen has learnt that kitchen: on another camera in another room its absolute scale "
+        "and layout do not carry over. Treat its depth on your own scenes as rough and relative until you "
+        "fine-tune on some of your own RGB-D frames (`rgb2cloud train` reads TUM, NYU, 7-Scenes and CSV "
+        "manifests).",
         "",
         "RGB | predicted | ground truth (one colour scale):",
         "",
-        "![TUM sample](quality/tum-sample.png)",
+        "![unseen sample](quality/unseen-sample.png)",
         "",
-        "Predicted point cloud (left) and ground truth (right), same virtual view:",
+        "Predicted point cloud (left) and ground truth (right), from one virtual view:",
         "",
-        "![TUM point clouds](quality/tum-pointcloud.png)",
+        "![unseen point clouds](quality/unseen-pointcloud.png)",
         "",
         "## Reproduce",
         "",
@@ -246,12 +240,15 @@ def build_report(inputs: ReportInputs) -> Path:
         f"rgb2cloud evaluate runs/7scenes-default/checkpoints/best.pt --format 7scenes --root {inputs.root} "
         f"--frames {inputs.test_frames} --out runs/7scenes-default/eval-test",
         f"rgb2cloud export runs/7scenes-default/checkpoints/best.pt --name {card.name} --version {card.version} "
-        f"--metrics runs/7scenes-default/eval-test/metrics.json --parity-image {inputs.tum_dir / 'TUM_color.png'}",
+        "--metrics runs/7scenes-default/eval-test/metrics.json --metrics runs/7scenes-default/eval-unseen/metrics.json "
+        f"--parity-image {unseen.path.parent / unseen.rows[0][0]}",
+        f"rgb2cloud evaluate runs/7scenes-default/checkpoints/best.pt --format csv --root {inputs.unseen} "
+        "--out runs/7scenes-default/eval-unseen",
         f"rgb2cloud baselines --format 7scenes --root {inputs.root} --train-frames {inputs.train_frames} "
         f"--test-frames {inputs.test_frames}",
         "rgb2cloud report "
         + " ".join(
-            [str(inputs.model), f"--root {inputs.root}", f"--tum-dir {inputs.tum_dir}"]
+            [str(inputs.model), f"--root {inputs.root}", f"--unseen {inputs.unseen}"]
             + [f'--compare "{n}={p}"' for n, p in inputs.compare.items()]
             + [f"--out {inputs.out}"]
         ),

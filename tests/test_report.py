@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from conftest import SEVEN_SCENES, TUM_FRAME, run_cli
+from conftest import REPO, SEVEN_SCENES, run_cli
 from PIL import Image
 
 from model.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
@@ -20,8 +20,8 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
         str(registry / "tiny" / "0.1.0"),
         "--root",
         str(SEVEN_SCENES),
-        "--tum-dir",
-        str(TUM_FRAME),
+        "--unseen",
+        str(REPO / "configs" / "tum-fr3-office.csv"),
         "--compare",
         f"eager checkpoint={trained_checkpoint}",
         "--train-frames",
@@ -42,7 +42,7 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
     assert published["images"] == 2
     # Same training config apart from the output folder.
     assert "(same training config)" in text
-    for name in ("pc_rmse_curve.png", "tum-sample.png", "tum-pointcloud.png", "local/7scenes-samples.png"):
+    for name in ("pc_rmse_curve.png", "unseen-sample.png", "unseen-pointcloud.png", "local/7scenes-samples.png"):
         assert Image.open(out / "quality" / name).size[0] > 100
 
 
