@@ -18,6 +18,7 @@ TUM frame, CC BY 4.0, credited) are committed.
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -74,7 +75,7 @@ def config_diff(base: dict, other: dict, prefix: str = "") -> list[str]:
         if isinstance(a, dict) and isinstance(b, dict):
             lines += config_diff(a, b, name + ".")
         elif a != b and key != "out_dir":
-            lines.append(f"`{name}`: {a} → {b}")
+            lines.append(f"`{name}`: {'(default)' if a is None else a} → {'(default)' if b is None else b}")
     return lines
 
 
@@ -108,7 +109,7 @@ def _fmt_targets(result: dict) -> str:
 def _card_section(card: ModelCard, model_dir: Path) -> list[str]:
     size_mb = sum((model_dir / f).stat().st_size for f in card.files) / 1e6
     g = card.generator
-    data = "; ".join(f"{d.name} frames {d.frames} ({d.licence})" for d in card.training.data)
+    data = "; ".join(f"{d.name} ({d.licence})" for d in card.training.data)
     return [
         f"- **Model**: `{card.name}` {card.version}, `{model_dir}`; files {', '.join(card.files)}: "
         f"{size_mb:.1f} MB in all.",
@@ -239,11 +240,11 @@ def build_report(inputs: ReportInputs) -> Path:
         "-s train.out_dir=runs/7scenes-default-paper-objective",
         f"rgb2cloud evaluate runs/7scenes-default/checkpoints/best.pt --format 7scenes --root {inputs.root} "
         f"--frames {inputs.test_frames} --out runs/7scenes-default/eval-test",
-        f"rgb2cloud export runs/7scenes-default/checkpoints/best.pt --name {card.name} --version {card.version} "
-        "--metrics runs/7scenes-default/eval-test/metrics.json --metrics runs/7scenes-default/eval-unseen/metrics.json "
-        f"--parity-image {unseen.path.parent / unseen.rows[0][0]}",
         f"rgb2cloud evaluate runs/7scenes-default/checkpoints/best.pt --format csv --root {inputs.unseen} "
         "--out runs/7scenes-default/eval-unseen",
+        f"rgb2cloud export runs/7scenes-default/checkpoints/best.pt --name {card.name} --version {card.version} "
+        "--metrics runs/7scenes-default/eval-test/metrics.json --metrics runs/7scenes-default/eval-unseen/metrics.json "
+        f"--parity-image {os.path.normpath(unseen.path.parent / unseen.rows[0][0])}",
         f"rgb2cloud baselines --format 7scenes --root {inputs.root} --train-frames {inputs.train_frames} "
         f"--test-frames {inputs.test_frames}",
         "rgb2cloud report "
