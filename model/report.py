@@ -9,10 +9,9 @@ its sha256 check). Each ``--compare`` model (a checkpoint or a version folder)
 is scored on the same test frames, and its training config is shown as a diff
 against the published model's, so an ablation row says exactly what changed.
 
-Figures that contain 7-Scenes pixels (RGB or its depth) go to ``quality/local/``,
-which git ignores: the dataset is read in place and never copied into the
-repository. Figures of the unseen scene (``--unseen``, a CSV manifest; ours is the
-TUM frame, CC BY 4.0, credited) are committed.
+Figures that contain dataset pixels (RGB, ground-truth depth, or clouds made
+from them) go to ``quality/local/``, which git ignores: data under
+``../shared/data`` is read in place and never copied into the repository.
 """
 
 from __future__ import annotations
@@ -159,8 +158,8 @@ def build_report(inputs: ReportInputs) -> Path:
     unseen = ManifestReader(inputs.unseen)
     unseen_result, _, unseen_grid = _score(predict, unseen, inputs, samples=1)
     _, unseen_pred, unseen_gt = unseen_grid[0]
-    sample_grid(unseen_grid).save(figures / "unseen-sample.png")
-    render_pair(unseen_pred, unseen[0]).save(figures / "unseen-pointcloud.png")
+    sample_grid(unseen_grid).save(local / "unseen-sample.png")
+    render_pair(unseen_pred, unseen[0]).save(local / "unseen-pointcloud.png")
     has_depth = unseen_gt > 0
     unseen_scale = float(np.median(unseen_gt[has_depth]) / np.median(unseen_pred[has_depth]))
 
@@ -198,11 +197,15 @@ def build_report(inputs: ReportInputs) -> Path:
         "",
         "## Samples",
         "",
-        "The command writes `quality/local/7scenes-samples.png` (RGB | predicted | ground truth, four test "
-        "frames) and `quality/local/7scenes-pointcloud.png` (a predicted cloud beside the ground-truth one, "
-        "from a virtual camera turned 35° about the cloud's centre). They hold 7-Scenes pixels, so they stay "
-        "on your machine: the dataset is read in place and never copied into the repository. The same views "
-        "of the unseen frame are in the next section.",
+        "The command writes, into `quality/local/`:",
+        "",
+        "- `7scenes-samples.png`: RGB | predicted | ground truth for four test frames, one colour scale per row;",
+        "- `7scenes-pointcloud.png`: a predicted point cloud (left) beside the ground-truth one (right), from a "
+        "virtual camera turned 35° about the cloud's centre;",
+        "- `unseen-sample.png` and `unseen-pointcloud.png`: the same views of the unseen scene below.",
+        "",
+        "They hold dataset pixels, so they stay on your machine: the data is read in place and never copied "
+        "into the repository. Run the command at the end to see them.",
         "",
         "## Ablation: the paper's objective against our additions",
         "",
@@ -224,13 +227,7 @@ def build_report(inputs: ReportInputs) -> Path:
         "fine-tune on some of your own RGB-D frames (`rgb2cloud train` reads TUM, NYU, 7-Scenes and CSV "
         "manifests).",
         "",
-        "RGB | predicted | ground truth (one colour scale):",
-        "",
-        "![unseen sample](quality/unseen-sample.png)",
-        "",
-        "Predicted point cloud (left) and ground truth (right), from one virtual view:",
-        "",
-        "![unseen point clouds](quality/unseen-pointcloud.png)",
+        "Its samples and point clouds are `quality/local/unseen-sample.png` and `quality/local/unseen-pointcloud.png`.",
         "",
         "## Reproduce",
         "",

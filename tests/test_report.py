@@ -42,8 +42,11 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
     assert published["images"] == 2
     # Same training config apart from the output folder.
     assert "(same training config)" in text
-    for name in ("pc_rmse_curve.png", "unseen-sample.png", "unseen-pointcloud.png", "local/7scenes-samples.png"):
+    local = ("7scenes-samples.png", "7scenes-pointcloud.png", "unseen-sample.png", "unseen-pointcloud.png")
+    for name in ("pc_rmse_curve.png", *(f"local/{n}" for n in local)):
         assert Image.open(out / "quality" / name).size[0] > 100
+    # Nothing with dataset pixels lands outside the ignored folder.
+    assert {p.name for p in (out / "quality").glob("*.png")} == {"pc_rmse_curve.png"}
 
 
 def test_config_diff_names_changed_leaves():
