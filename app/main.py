@@ -29,6 +29,7 @@ EXPOSED_HEADERS = [
     "X-Point-Count",
     "X-Intrinsics",
     "X-Inference-Ms",
+    "Server-Timing",
     "Retry-After",
 ]
 

@@ -17,12 +17,35 @@ from model.geometry import Intrinsics, point_cloud
 
 @dataclass
 class Result:
+    """The response body and headers, and the seconds each stage took on the server."""
+
     body: bytes
     headers: dict[str, str]
-    inference_seconds: float
+    stages: dict[str, float]
+
+    @property
+    def inference_seconds(self) -> float:
+        return self.stages["inference"]
+
+    def server_timing(self) -> str:
+        """The standard ``Server-Timing`` header value (milliseconds; browsers' dev tools show it)."""
+        return ", ".join(f"{name};dur={seconds * 1000:.1f}" for name, seconds in self.stages.items())
 
 
-def infer(model: LoadedModel, rgb: np.ndarray, max_pixels: int) -> tuple[np.ndarray, float]:
+class Stopwatch:
+    """Seconds per named stage, in the order the stages ran."""
+
+    def __init__(self) -> None:
+        self.stages: dict[str, float] = {}
+        self._last = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.stages[name] = now - self._last
+        self._last = now
+
+
+def infer(model: LoadedModel, rgb: np.ndarray, max_pixels: int) -> np.ndarray:
     """Depth in metres at the input's size.
 
     Images above ``max_pixels`` are shrunk for the generator (it was trained near
@@ -34,12 +57,10 @@ def infer(model: LoadedModel, rgb: np.ndarray, max_pixels: int) -> tuple[np.ndar
     if h * w > max_pixels:
         s = math.sqrt(max_pixels / (h * w))
         small = np.asarray(Image.fromarray(rgb).resize((max(1, round(w * s)), max(1, round(h * s))), Image.BILINEAR))
-    start = time.perf_counter()
     depth = model.predict_depth(small)
-    seconds = time.perf_counter() - start
     if small is not rgb:
         depth = np.asarray(Image.fromarray(depth, mode="F").resize((w, h), Image.BILINEAR), dtype=np.float32)
-    return depth, seconds
+    return depth
 
 
 def model_headers(model: LoadedModel) -> dict[str, str]:
@@ -47,15 +68,21 @@ def model_headers(model: LoadedModel) -> dict[str, str]:
 
 
 def depth_png(model: LoadedModel, data: bytes, max_pixels: int, infer_pixels: int, colormap: bool) -> Result:
+    watch = Stopwatch()
     rgb = decode_image(data, max_pixels)
-    depth, seconds = infer(model, rgb, infer_pixels)
+    watch.lap("decode")
+    depth = infer(model, rgb, infer_pixels)
+    watch.lap("inference")
     headers = model_headers(model)
     if colormap:
         lo, hi = (float(v) for v in np.percentile(depth, [2, 98]))
         headers |= {"X-Depth-Units": "colormap", "X-Depth-Range-M": f"{lo:.3f},{hi:.3f}"}
-        return Result(encode_colormap_png(depth, lo, hi), headers, seconds)
-    headers["X-Depth-Units"] = "mm"
-    return Result(encode_depth_png(depth), headers, seconds)
+        body = encode_colormap_png(depth, lo, hi)
+    else:
+        headers["X-Depth-Units"] = "mm"
+        body = encode_depth_png(depth)
+    watch.lap("encode")
+    return Result(body, headers, watch.stages)
 
 
 @dataclass(frozen=True)
@@ -86,12 +113,18 @@ def camera_for(model: LoadedModel, width: int, height: int, options: CloudOption
 def point_cloud_ply(
     model: LoadedModel, data: bytes, max_pixels: int, infer_pixels: int, options: CloudOptions
 ) -> Result:
+    watch = Stopwatch()
     rgb = decode_image(data, max_pixels)
-    depth, seconds = infer(model, rgb, infer_pixels)
+    watch.lap("decode")
+    depth = infer(model, rgb, infer_pixels)
+    watch.lap("inference")
     k = camera_for(model, rgb.shape[1], rgb.shape[0], options)
     points = point_cloud(depth, rgb, k, stride=options.stride, min_depth=options.min_depth, max_depth=options.max_depth)
+    watch.lap("backproject")
+    body = encode_ply(points)
+    watch.lap("encode")
     headers = model_headers(model) | {
         "X-Point-Count": str(len(points)),
         "X-Intrinsics": f"{k.fx:.4f},{k.fy:.4f},{k.cx:.4f},{k.cy:.4f}",
     }
-    return Result(encode_ply(points), headers, seconds)
+    return Result(body, headers, watch.stages)

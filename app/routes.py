@@ -31,6 +31,7 @@ async def _run(request: Request, fn, *args) -> Result:
     result: Result = await state.pool.run(fn, state.model, *args)
     state.metrics.inference.observe(result.inference_seconds)
     result.headers["X-Inference-Ms"] = f"{result.inference_seconds * 1000:.1f}"
+    result.headers["Server-Timing"] = result.server_timing()
     return result
 
 

@@ -67,6 +67,15 @@ def rss_mb(pid: int) -> float:
     return float("nan")
 
 
+def server_timing(response: httpx.Response) -> dict[str, float]:
+    """The service's ``Server-Timing`` header as {stage: ms}."""
+    stages = {}
+    for entry in response.headers["server-timing"].split(","):
+        name, duration = entry.strip().split(";dur=")
+        stages[name] = float(duration)
+    return stages
+
+
 def depth_png_encoders(depth: np.ndarray, repeats: int) -> dict[str, tuple[float, int]]:
     """The depth PNG three ways, as (median ms, bytes): ours, ours with zlib's deflate, Pillow."""
     rows = depth_png_rows(depth)
@@ -129,15 +138,20 @@ def main() -> None:
         files = {"image": ("photo.jpg", data)}
         shares = {}
         for route in ("/depth", "/pointcloud"):
-            totals, others = [], []
+            rows = []
             for _ in range(r + 1):
                 start = time.perf_counter()
                 response = client.post(f"{url}{route}", files=files)
                 total = (time.perf_counter() - start) * 1000
-                totals.append(total)
-                others.append(total - float(response.headers["x-inference-ms"]))
-            stages[f"HTTP total {route}"] = statistics.median(totals[1:])
-            shares[route] = (statistics.median(others[1:]), statistics.median(totals[1:]))
+                rows.append({"total": total, **server_timing(response)})
+            rows = rows[1:]  # the first request warms the connection
+            stages[f"HTTP total {route}"] = statistics.median(row["total"] for row in rows)
+            shares[route] = {name: statistics.median(row[name] for row in rows) for name in rows[0] if name != "total"}
+            shares[route]["HTTP, multipart and framework (total - server stages)"] = statistics.median(
+                row["total"] - sum(v for k, v in row.items() if k != "total") for row in rows
+            )
+            shares[route]["outside the model call"] = statistics.median(row["total"] - row["inference"] for row in rows)
+            shares[route]["total"] = stages[f"HTTP total {route}"]
         rss_before = rss_mb(service.pid)
         throughput = {}
         per_client = max(2, r // 2)
@@ -205,12 +219,15 @@ def main() -> None:
     out.write("| stage | median ms |\n|---|---|\n")
     for stage, ms in stages.items():
         out.write(f"| {stage} | {ms:.1f} |\n")
-    for route, (other, total) in shares.items():
-        out.write(
-            f"\nEverything but the model call on {route} (per request; the model call, from X-Inference-Ms, is "
-            "fit to grid + generator + decode to metres): "
-            f"{other:.1f} ms of {total:.1f} ms = {other / total:.0%}\n"
-        )
+    out.write(
+        "\nOne request at a time, split by the service's `Server-Timing` header (server stages; `inference` is "
+        "the model call: fit to grid + generator + decode to metres) and the client's wall clock:\n"
+    )
+    for route, split in shares.items():
+        out.write(f"\n| {route} | median ms | share of total |\n|---|---|---|\n")
+        for name, ms in split.items():
+            label = f"**{name}**" if name == "outside the model call" else name
+            out.write(f"| {label} | {ms:.1f} | {ms / split['total']:.0%} |\n")
     out.write(f"\n| depth PNG, {w}x{h}, compression level {PNG_COMPRESS_LEVEL} | median ms | KB |\n|---|---|---|\n")
     for label, (ms, size) in png_encoders.items():
         out.write(f"| {label} | {ms:.1f} | {size / 1000:.0f} |\n")

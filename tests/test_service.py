@@ -10,6 +10,7 @@ import shutil
 import struct
 import subprocess
 import sys
+import time
 import zlib
 
 import httpx
@@ -83,6 +84,29 @@ def test_depth_png_is_16_bit_millimetres_at_the_input_size(service, model):
     expected = np.rint(model.predict_depth(rgb) * 1000)
     assert np.abs(depth_mm.astype(np.int64) - expected).max() <= 1
     assert depth_mm.min() >= 250 and depth_mm.max() <= 10000  # within the card's depth encoding
+
+
+def server_timing(response: httpx.Response) -> dict[str, float]:
+    stages = {}
+    for entry in response.headers["server-timing"].split(","):
+        name, duration = entry.strip().split(";dur=")
+        stages[name] = float(duration)
+    return stages
+
+
+@pytest.mark.parametrize(
+    ("route", "stages"),
+    [("/depth", ["decode", "inference", "encode"]), ("/pointcloud", ["decode", "inference", "backproject", "encode"])],
+)
+def test_server_timing_names_each_stage_in_order(service, route, stages):
+    start = time.perf_counter()
+    r = post(service, route, png_bytes(tum_rgb(96, 72)))
+    elapsed_ms = (time.perf_counter() - start) * 1000
+    timing = server_timing(r)
+    assert list(timing) == stages
+    assert all(ms >= 0 for ms in timing.values())
+    assert timing["inference"] == float(r.headers["x-inference-ms"])
+    assert sum(timing.values()) <= elapsed_ms
 
 
 def test_exif_orientation_is_applied(service):
