@@ -132,6 +132,9 @@ def report(
     train_frames: Annotated[str, typer.Option(help="frames the baselines are fitted on")] = "0-799",
     test_frames: Annotated[str, typer.Option(help="frames everything is scored on")] = "850-999",
     out: Annotated[Path, typer.Option(help="folder for quality.md and quality/")] = Path("docs"),
+    recipe: Annotated[
+        Path | None, typer.Option(help="shell script of the training commands, quoted in quality.md", exists=True)
+    ] = None,
 ) -> None:
     """Write quality.md: metrics beside the paper and baselines, curve, samples, ablation, an unseen scene."""
     from model.report import ReportInputs, build_report
@@ -142,7 +145,9 @@ def report(
         if not sep or not name or not Path(path).exists():
             raise typer.BadParameter(f"--compare {item!r}: expected LABEL=PATH to an existing checkpoint or version")
         pairs[name] = Path(path)
-    inputs = ReportInputs(model, root, unseen, pairs, out, train_frames=train_frames, test_frames=test_frames)
+    inputs = ReportInputs(
+        model, root, unseen, pairs, out, recipe=recipe, train_frames=train_frames, test_frames=test_frames
+    )
     typer.echo(f"wrote {build_report(inputs)}")
 
 

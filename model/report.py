@@ -50,6 +50,8 @@ class ReportInputs:
     unseen: Path
     compare: dict[str, Path]
     out: Path
+    #: A shell script with the training commands, copied into the Reproduce section.
+    recipe: Path | None = None
     train_frames: str = "0-799"
     test_frames: str = "850-999"
     min_m: float = 0.1
@@ -105,6 +107,13 @@ def _fmt_targets(result: dict) -> str:
     return f"**{paper}**; {aims}."
 
 
+def _recipe_section(recipe: Path | None) -> list[str]:
+    """The training commands, verbatim from the recipe script, or a pointer to the card's config."""
+    if recipe is None:
+        return ["Training: `rgb2cloud train` with the config in the model card (`card.json`, `training.config`).", ""]
+    return [f"Training (`sh {recipe}`):", "", "```sh", recipe.read_text().rstrip(), "```", "", "Then:", ""]
+
+
 def _card_section(card: ModelCard, model_dir: Path) -> list[str]:
     size_mb = sum((model_dir / f).stat().st_size for f in card.files) / 1e6
     g = card.generator
@@ -127,6 +136,7 @@ def build_report(inputs: ReportInputs) -> Path:
     figures, local = out / "quality", out / "quality" / "local"
     local.mkdir(parents=True, exist_ok=True)
     card = load_card(inputs.model)
+    run = card.training.config["train"]["out_dir"]  # the run folder its checkpoint came from
     predict, label = load_predictor(inputs.model)
     test = SevenScenesReader(inputs.root, inputs.test_frames)
     split = f"{inputs.root.name} {inputs.test_frames}"
@@ -231,22 +241,20 @@ def build_report(inputs: ReportInputs) -> Path:
         "",
         "## Reproduce",
         "",
+        *_recipe_section(inputs.recipe),
         "```sh",
-        "rgb2cloud train configs/7scenes-default.yaml -s train.threads=1",
-        "rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s loss.l1_depth=0 "
-        "-s train.out_dir=runs/7scenes-default-paper-objective",
-        f"rgb2cloud evaluate runs/7scenes-default/checkpoints/best.pt --format 7scenes --root {inputs.root} "
-        f"--frames {inputs.test_frames} --out runs/7scenes-default/eval-test",
-        f"rgb2cloud evaluate runs/7scenes-default/checkpoints/best.pt --format csv --root {inputs.unseen} "
-        "--out runs/7scenes-default/eval-unseen",
-        f"rgb2cloud export runs/7scenes-default/checkpoints/best.pt --name {card.name} --version {card.version} "
-        "--metrics runs/7scenes-default/eval-test/metrics.json --metrics runs/7scenes-default/eval-unseen/metrics.json "
+        f"rgb2cloud evaluate {run}/checkpoints/best.pt --format 7scenes --root {inputs.root} "
+        f"--frames {inputs.test_frames} --out {run}/eval-test",
+        f"rgb2cloud evaluate {run}/checkpoints/best.pt --format csv --root {inputs.unseen} --out {run}/eval-unseen",
+        f"rgb2cloud export {run}/checkpoints/best.pt --name {card.name} --version {card.version} "
+        f"--metrics {run}/eval-test/metrics.json --metrics {run}/eval-unseen/metrics.json "
         f"--parity-image {os.path.normpath(unseen.path.parent / unseen.rows[0][0])}",
         f"rgb2cloud baselines --format 7scenes --root {inputs.root} --train-frames {inputs.train_frames} "
         f"--test-frames {inputs.test_frames}",
         "rgb2cloud report "
         + " ".join(
             [str(inputs.model), f"--root {inputs.root}", f"--unseen {inputs.unseen}"]
+            + ([f"--recipe {inputs.recipe}"] if inputs.recipe else [])
             + [f'--compare "{n}={p}"' for n, p in inputs.compare.items()]
             + [f"--out {inputs.out}"]
         ),

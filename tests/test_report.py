@@ -28,10 +28,16 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
         "0-3",
         "--test-frames",
         "850-851",
+        "--recipe",
+        str(REPO / "configs" / "7scenes-default.train.sh"),
         "--out",
         str(out),
     )
     text = (out / "quality.md").read_text()
+    # The training recipe is quoted verbatim, and the follow-up commands use the card's run folder.
+    assert (REPO / "configs" / "7scenes-default.train.sh").read_text().strip() in text
+    run = json.loads((registry / "tiny" / "0.1.0" / "card.json").read_text())["training"]["config"]["train"]["out_dir"]
+    assert f"rgb2cloud evaluate {run}/checkpoints/best.pt" in text
     for row in ("tiny 0.1.0 (ONNX)", "eager checkpoint", "baseline: constant", "per-pixel train median", "paper (TUM"):
         assert row in text
     assert "non-commercial" in text and "850-851" in text
