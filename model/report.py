@@ -146,9 +146,12 @@ def build_report(inputs: ReportInputs) -> Path:
     curves = {label: [r["pc_rmse"] for r in per_image]}
     ablation_lines = []
     base_config = card.training.config
+    unseen = ManifestReader(inputs.unseen)
+    unseen_rows = {}
     for name, path in inputs.compare.items():
         other_predict, _ = load_predictor(path)
         result, other_images, _ = _score(other_predict, test, inputs)
+        unseen_rows[name] = _score(other_predict, unseen, inputs)[0]
         rows[name] = result
         curves[name] = [r["pc_rmse"] for r in other_images]
         diff = config_diff(base_config, training_config(path)) or ["(same training config)"]
@@ -165,7 +168,6 @@ def build_report(inputs: ReportInputs) -> Path:
     middle = test[len(test) // 2]
     render_pair(predict(middle.rgb), middle).save(local / "7scenes-pointcloud.png")
 
-    unseen = ManifestReader(inputs.unseen)
     unseen_result, _, unseen_grid = _score(predict, unseen, inputs, samples=1)
     _, unseen_pred, unseen_gt = unseen_grid[0]
     sample_grid(unseen_grid).save(local / "unseen-sample.png")
@@ -174,7 +176,17 @@ def build_report(inputs: ReportInputs) -> Path:
     unseen_scale = float(np.median(unseen_gt[has_depth]) / np.median(unseen_pred[has_depth]))
 
     (figures / "metrics.json").write_text(
-        json.dumps({"split": split, "rows": rows, "unseen": unseen_result, "per_image": per_image}, indent=2) + "\n"
+        json.dumps(
+            {
+                "split": split,
+                "rows": rows,
+                "unseen": unseen_result,
+                "unseen_compared": unseen_rows,
+                "per_image": per_image,
+            },
+            indent=2,
+        )
+        + "\n"
     )
     lines = [
         "# Quality of the bundled default model",
@@ -229,7 +241,9 @@ def build_report(inputs: ReportInputs) -> Path:
         f"`{inputs.unseen}` ({len(unseen)} frame(s); ours is the real TUM fr3 office frame, {TUM_LICENCE}), "
         "with its own camera's intrinsics:",
         "",
-        markdown_table({label: unseen_result, "paper (TUM, Table 2; trained on TUM)": PAPER_TUM}),
+        markdown_table(
+            {f"**{label}**": unseen_result, **unseen_rows, "paper (TUM, Table 2; trained on TUM)": PAPER_TUM}
+        ),
         "",
         f"On the first frame the median of truth / prediction is {unseen_scale:.2f}. A model trained on 760 "
         "frames of one kitchen has learnt that kitchen: on another camera in another room its absolute scale "

@@ -46,6 +46,9 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
     published = next(v for k, v in rows.items() if "tiny" in k)
     assert abs(published["rel"] - rows["eager checkpoint"]["rel"]) < 1e-4
     assert published["images"] == 2
+    # Compared rows are scored on the unseen scene too.
+    unseen_section = text[text.index("## Generalisation") : text.index("## Reproduce")]
+    assert "| eager checkpoint |" in unseen_section
     # Same training config apart from the output folder.
     assert "(same training config)" in text
     local = ("7scenes-samples.png", "7scenes-pointcloud.png", "unseen-sample.png", "unseen-pointcloud.png")
