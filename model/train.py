@@ -80,6 +80,17 @@ def hardware_description(device: torch.device, world_size: int) -> str:
     return f"CPU {cpu_description()}, {world_size} process(es), {torch.get_num_threads()} threads each"
 
 
+def hardware_history(segments: list[list], step: int) -> str:
+    """The card's hardware line: one machine, or each stretch of steps when a resume changed it.
+
+    ``segments`` holds ``[first_step, hardware]`` pairs in order; ``step`` ends the last one.
+    """
+    if len(segments) == 1:
+        return segments[0][1]
+    ends = [start for start, _ in segments[1:]] + [step]
+    return "; ".join(f"steps {start}-{end}: {hw}" for (start, hw), end in zip(segments, ends, strict=True))
+
+
 def init_weights(module: nn.Module) -> None:
     """pix2pixHD's initialisation: conv weights ~ N(0, 0.02), biases 0."""
     if isinstance(module, nn.Conv2d | nn.ConvTranspose2d):
@@ -150,6 +161,7 @@ def train(config: RunConfig, resume: bool = False) -> dict:
     scaler = torch.amp.GradScaler(device.type, enabled=use_amp and amp_dtype == torch.float16)
 
     start_step, best, train_seconds = 0, None, 0.0
+    segments: list[list] = []  # [first_step, hardware] per stretch of training on one setup
     if resume:
         state = load_checkpoint(ckpt_dir / "last.pt")
         _check_resumable(state["config"], config)
@@ -159,6 +171,7 @@ def train(config: RunConfig, resume: bool = False) -> dict:
         opt_d.load_state_dict(state["opt_d"])
         scaler.load_state_dict(state["scaler"])
         start_step, best, train_seconds = state["step"], state["best"], state["train_seconds"]
+        segments = state.get("hardware_segments") or [[0, state["hardware"]]]
 
     if ddp.world_size > 1:
         ids = [device.index] if device.type == "cuda" else None
@@ -184,6 +197,8 @@ def train(config: RunConfig, resume: bool = False) -> dict:
         (out / "config.yaml").write_text(yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
         writer = SummaryWriter(out / "tensorboard", purge_step=start_step)
     hardware = hardware_description(device, ddp.world_size)
+    if not segments or segments[-1][1] != hardware:
+        segments.append([start_step, hardware])
 
     def checkpoint_state(step: int) -> dict:
         return {
@@ -195,7 +210,8 @@ def train(config: RunConfig, resume: bool = False) -> dict:
             "step": step,
             "best": best,
             "train_seconds": train_seconds,
-            "hardware": hardware,
+            "hardware": hardware_history(segments, step),
+            "hardware_segments": segments,
             "config": config.model_dump(mode="json"),
         }
 
@@ -316,7 +332,7 @@ def train(config: RunConfig, resume: bool = False) -> dict:
     summary = {
         "steps": loop.steps,
         "train_seconds": round(train_seconds, 1),
-        "hardware": hardware,
+        "hardware": hardware_history(segments, loop.steps),
         "best": best,
         "rank_weight_sha256": digests,
         "last_losses": logged,

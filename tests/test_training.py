@@ -55,6 +55,16 @@ def test_resume_repeats_the_uninterrupted_run(tmp_path):
     assert summary_a["rank_weight_sha256"] == summary_b["rank_weight_sha256"]
 
 
+def test_resume_on_other_settings_records_each_stretch_of_hardware(tmp_path):
+    config = write_config(tmp_path / "c.yaml", tiny_config(tmp_path / "c", train={"steps": 4, "checkpoint_every": 2}))
+    run_cli("train", str(config), "-s", "train.steps=2", "-s", "train.threads=1")
+    run_cli("train", str(config), "--resume", "-s", "train.threads=2")
+    hardware = json.loads((tmp_path / "c/summary.json").read_text())["hardware"]
+    assert hardware.startswith("steps 0-2: ") and "1 threads each; steps 2-4: " in hardware
+    assert hardware.endswith("2 threads each")
+    assert torch.load(tmp_path / "c/checkpoints/last.pt", weights_only=True)["hardware"] == hardware
+
+
 def test_resume_refuses_a_different_network(tmp_path):
     config = write_config(tmp_path / "c.yaml", tiny_config(tmp_path / "run", train={"steps": 2}))
     run_cli("train", str(config))
