@@ -31,7 +31,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 
-from service_server import running_service  # noqa: E402
+from service_server import running_service, server_timing  # noqa: E402
 
 from app.imaging import PNG_COMPRESS_LEVEL, decode_image, depth_png_rows, encode_depth_png  # noqa: E402
 from app.loading import load_model  # noqa: E402
@@ -65,15 +65,6 @@ def rss_mb(pid: int) -> float:
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) / 1024
     return float("nan")
-
-
-def server_timing(response: httpx.Response) -> dict[str, float]:
-    """The service's ``Server-Timing`` header as {stage: ms}."""
-    stages = {}
-    for entry in response.headers["server-timing"].split(","):
-        name, duration = entry.strip().split(";dur=")
-        stages[name] = float(duration)
-    return stages
 
 
 def depth_png_encoders(depth: np.ndarray, repeats: int) -> dict[str, tuple[float, int]]:

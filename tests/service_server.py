@@ -22,6 +22,15 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def server_timing(response: httpx.Response) -> dict[str, float]:
+    """The service's ``Server-Timing`` header as {stage: ms}, in the order the stages ran."""
+    stages = {}
+    for entry in response.headers["server-timing"].split(","):
+        name, duration = entry.strip().split(";dur=")
+        stages[name] = float(duration)
+    return stages
+
+
 @dataclass(frozen=True)
 class Service:
     url: str

@@ -19,7 +19,7 @@ import pytest
 from conftest import REPO, TUM_FRAME
 from PIL import Image
 from plyfile import PlyData
-from service_server import running_service
+from service_server import running_service, server_timing
 
 from app.loading import load_model
 from app.settings import Settings
@@ -84,14 +84,6 @@ def test_depth_png_is_16_bit_millimetres_at_the_input_size(service, model):
     expected = np.rint(model.predict_depth(rgb) * 1000)
     assert np.abs(depth_mm.astype(np.int64) - expected).max() <= 1
     assert depth_mm.min() >= 250 and depth_mm.max() <= 10000  # within the card's depth encoding
-
-
-def server_timing(response: httpx.Response) -> dict[str, float]:
-    stages = {}
-    for entry in response.headers["server-timing"].split(","):
-        name, duration = entry.strip().split(";dur=")
-        stages[name] = float(duration)
-    return stages
 
 
 @pytest.mark.parametrize(
