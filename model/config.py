@@ -129,6 +129,12 @@ class TransformConfig(_Strict):
     brightness: float = Field(0.2, ge=0)
     contrast: float = Field(0.2, ge=0)
     saturation: float = Field(0.2, ge=0)
+    rotate_deg: float = Field(
+        0.0,
+        ge=0,
+        le=30,
+        description="largest virtual camera turn about each axis (yaw, pitch, roll), in degrees; 0 = off",
+    )
 
 
 class DataConfig(_Strict):

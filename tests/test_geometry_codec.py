@@ -8,7 +8,7 @@ import pytest
 from model.codec import DepthEncoding, rgb_to_input
 from model.config import TransformConfig
 from model.data.frames import Frame
-from model.data.transforms import TransformParams, apply_params, sample_params
+from model.data.transforms import TransformParams, apply_params, rotate_frame, rotation_matrix, sample_params
 from model.geometry import KINECT_DEFAULT, POINT, Intrinsics, colours, pad_to_multiple, point_cloud, xyz
 
 
@@ -79,6 +79,46 @@ def test_sampled_params_cover_the_crop_and_jitter_only_rgb():
     out = apply_params(frame, sample_params(np.random.default_rng(1), TransformConfig(brightness=0.5), 480, 640))
     np.testing.assert_allclose(out.depth, 2.0)  # nearest-neighbour depth, untouched by colour jitter
     assert out.intrinsics.width == 320 and out.intrinsics.height == 240
+
+
+def test_virtual_turn_keeps_the_scene_where_it_was():
+    """After a turn R, every back-projected point is R times a point of the original scene.
+
+    The scene is a tilted plane n . X = 2, so after the turn its points must satisfy
+    (R n) . X' = 2; and pixels the old view never saw get no depth and black RGB.
+    """
+    h, w = 96, 128
+    k = Intrinsics(110.0, 112.0, 63.2, 47.7, w, h)
+    normal = np.array([0.2, -0.1, 1.0])
+    uu, vv = np.meshgrid(np.arange(w), np.arange(h))
+    rays = np.stack([(uu - k.cx) / k.fx, (vv - k.cy) / k.fy, np.ones((h, w))], -1)
+    depth = (2.0 / (rays @ normal)).astype(np.float32)
+    frame = Frame(np.full((h, w, 3), 200, np.uint8), depth, k, "plane")
+    r = rotation_matrix(12.0, -7.0, 5.0)
+    out = rotate_frame(frame, r)
+    assert out.intrinsics == k and out.depth.shape == (h, w)
+    valid = out.depth > 0
+    assert 0.5 < valid.mean() < 0.95  # a 12° turn leaves a border the old view never saw
+    points = (rays * out.depth[..., None])[valid]
+    # Depth is sampled by nearest neighbour, so a point may sit up to half a pixel off the ray.
+    np.testing.assert_allclose(points @ (r @ normal), 2.0, rtol=0.02)
+    assert (out.rgb[~valid] == 0).all() and (out.rgb[valid] > 190).all()
+
+
+def test_rotation_is_off_by_default_and_drawn_within_bounds():
+    frame = Frame(
+        np.full((48, 64, 3), 9, np.uint8), np.full((48, 64), 1.5, np.float32), KINECT_DEFAULT.resized(64, 48), "f"
+    )
+    off = TransformConfig(size=(48, 64), scale=(1.0, 1.0))
+    assert sample_params(np.random.default_rng(3), off, 48, 64).rotation == (0.0, 0.0, 0.0)
+    on = off.model_copy(update={"rotate_deg": 10.0})
+    p_on, p_off = (
+        sample_params(np.random.default_rng(3), on, 48, 64),
+        sample_params(np.random.default_rng(3), off, 48, 64),
+    )
+    assert max(abs(a) for a in p_on.rotation) <= 10.0 and any(p_on.rotation)
+    assert (p_on.flip, p_on.brightness) == (p_off.flip, p_off.brightness)  # the other draws are unchanged
+    np.testing.assert_array_equal(rotate_frame(frame, np.eye(3)).depth, frame.depth)
 
 
 def test_pad_to_multiple():

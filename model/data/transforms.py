@@ -5,6 +5,11 @@ Following pix2pix's ``get_params`` idea, the random numbers are drawn once into 
 depth never drift apart and the intrinsics stay true to the pixels:
 a resize scales fx, fy, cx, cy; a crop shifts cx, cy; a flip mirrors cx.
 Depth is resized with nearest neighbour so holes never blend into valid depth.
+
+A virtual camera turn (``rotate_deg``) shows the room from viewing directions
+the recording never took. A pure rotation has no parallax, so it is exact: RGB and
+depth move by the homography K R^T K^-1, and each depth is re-measured along the
+new optical axis. Pixels the old view never saw become black with no depth.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ class TransformParams:
     brightness: float
     contrast: float
     saturation: float
+    rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)  # yaw, pitch, roll in degrees
 
 
 def sample_params(rng: np.random.Generator, config: TransformConfig, height: int, width: int) -> TransformParams:
@@ -40,14 +46,61 @@ def sample_params(rng: np.random.Generator, config: TransformConfig, height: int
     def factor(amount: float) -> float:
         return float(rng.uniform(1 - amount, 1 + amount)) if amount else 1.0
 
+    flip = bool(config.flip and rng.random() < 0.5)
+    brightness, contrast, saturation = (factor(a) for a in (config.brightness, config.contrast, config.saturation))
+    # Drawn last, and only when on, so that configs without it keep their random stream.
+    rotation = tuple(rng.uniform(-config.rotate_deg, config.rotate_deg, 3)) if config.rotate_deg else (0.0, 0.0, 0.0)
     return TransformParams(
         resize=(new_h, new_w),
         crop=(top, left, crop_h, crop_w),
-        flip=bool(config.flip and rng.random() < 0.5),
-        brightness=factor(config.brightness),
-        contrast=factor(config.contrast),
-        saturation=factor(config.saturation),
+        flip=flip,
+        brightness=brightness,
+        contrast=contrast,
+        saturation=saturation,
+        rotation=tuple(float(a) for a in rotation),
     )
+
+
+def rotation_matrix(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """Camera turn in degrees: yaw about y (down), pitch about x (right), roll about z (forward)."""
+    y, p, r = np.radians([yaw, pitch, roll])
+    ry = np.array([[np.cos(y), 0, np.sin(y)], [0, 1, 0], [-np.sin(y), 0, np.cos(y)]])
+    rx = np.array([[1, 0, 0], [0, np.cos(p), -np.sin(p)], [0, np.sin(p), np.cos(p)]])
+    rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
+    return rz @ rx @ ry
+
+
+def rotate_frame(frame: Frame, rotation: np.ndarray) -> Frame:
+    """The frame as the same camera would see it after turning by ``rotation`` (new = R @ old).
+
+    For each new pixel p', the old view saw its ray along d = R^T K^-1 p'; the RGB is
+    sampled bilinearly there, the depth by nearest neighbour (no blending across
+    holes), and a point at old depth z lies at new depth z / d_z.
+    """
+    k = frame.intrinsics
+    h, w = frame.depth.shape
+    vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
+    rays = np.stack([(uu - k.cx) / k.fx, (vv - k.cy) / k.fy, np.ones_like(uu)], -1) @ rotation  # rows: R^T p
+    dz = rays[..., 2]
+    ahead = dz > 1e-6
+    dz_safe = np.where(ahead, dz, 1.0)
+    su = np.where(ahead, rays[..., 0] / dz_safe * k.fx + k.cx, -1.0)
+    sv = np.where(ahead, rays[..., 1] / dz_safe * k.fy + k.cy, -1.0)
+
+    inside = (su > -0.5) & (su < w - 0.5) & (sv > -0.5) & (sv < h - 0.5)  # its nearest old pixel exists
+    ni = np.clip(np.rint(sv), 0, h - 1).astype(np.intp)
+    nj = np.clip(np.rint(su), 0, w - 1).astype(np.intp)
+    depth = np.where(inside, frame.depth[ni, nj] / dz_safe, 0.0).astype(np.float32)
+
+    u0 = np.clip(np.floor(su), 0, w - 2).astype(np.intp)
+    v0 = np.clip(np.floor(sv), 0, h - 2).astype(np.intp)
+    fu = np.clip(su - u0, 0, 1)[..., None]
+    fv = np.clip(sv - v0, 0, 1)[..., None]
+    src = frame.rgb.astype(np.float64)
+    top = src[v0, u0] * (1 - fu) + src[v0, u0 + 1] * fu
+    bottom = src[v0 + 1, u0] * (1 - fu) + src[v0 + 1, u0 + 1] * fu
+    rgb = np.where(inside[..., None], top * (1 - fv) + bottom * fv, 0.0)
+    return Frame(np.rint(rgb).astype(np.uint8), depth, k, frame.name)
 
 
 def resize_frame(frame: Frame, height: int, width: int) -> Frame:
@@ -70,6 +123,8 @@ def jitter_colour(rgb: np.ndarray, brightness: float, contrast: float, saturatio
 
 def apply_params(frame: Frame, p: TransformParams) -> Frame:
     frame = resize_frame(frame, *p.resize)
+    if any(p.rotation):
+        frame = rotate_frame(frame, rotation_matrix(*p.rotation))
     top, left, h, w = p.crop
     rgb = frame.rgb[top : top + h, left : left + w]
     depth = frame.depth[top : top + h, left : left + w]
