@@ -27,6 +27,7 @@ from PIL import Image
 
 from model.baselines import fit_baselines, score_baselines
 from model.card import ModelCard, load_card
+from model.config import RunConfig
 from model.data.frames import Frame
 from model.data.manifest import ManifestReader
 from model.data.sevenscenes import SevenScenesReader
@@ -58,13 +59,22 @@ class ReportInputs:
     max_m: float = 10.0
 
 
+def complete_config(saved: dict) -> dict:
+    """A saved run config with every key filled in.
+
+    Runs save their whole config, so a key missing from an older run is one added
+    since, which that run used at its default: filling it in keeps it out of the diff.
+    """
+    return RunConfig.model_validate(saved).model_dump(mode="json")
+
+
 def training_config(path: Path) -> dict:
-    """The run config a checkpoint or a published version was trained with."""
+    """The complete run config a checkpoint or a published version was trained with."""
     if path.is_dir():
-        return load_card(path).training.config
+        return complete_config(load_card(path).training.config)
     from model.checkpoint import load_checkpoint
 
-    return load_checkpoint(path)["config"]
+    return complete_config(load_checkpoint(path)["config"])
 
 
 def config_diff(base: dict, other: dict, prefix: str = "") -> list[str]:

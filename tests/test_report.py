@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import copy
 import json
 
 import numpy as np
 from conftest import REPO, SEVEN_SCENES, run_cli
 from PIL import Image
 
+from model.config import load_config
 from model.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
 from model.render import render_points
-from model.report import config_diff
+from model.report import complete_config, config_diff
 
 
 def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, trained_checkpoint, tmp_path):
@@ -62,6 +64,14 @@ def test_config_diff_names_changed_leaves():
     base = {"loss": {"l1_depth": 100.0, "gan_mode": "lsgan"}, "train": {"out_dir": "a", "steps": 10}}
     other = {"loss": {"l1_depth": 0.0, "gan_mode": "lsgan"}, "train": {"out_dir": "b", "steps": 10}}
     assert config_diff(base, other) == ["`loss.l1_depth`: 100.0 → 0.0"]
+
+
+def test_a_key_added_since_an_older_run_reads_as_its_default():
+    today = load_config(REPO / "configs" / "7scenes-default.yaml").model_dump(mode="json")
+    older = copy.deepcopy(today)
+    del older["data"]["transform"]["rotate_deg"]  # saved before the key existed
+    older["generator"]["dropout"] = 0.0
+    assert config_diff(complete_config(today), complete_config(older)) == ["`generator.dropout`: 0.5 → 0.0"]
 
 
 def test_render_turns_about_the_centre_and_nearest_point_wins():
