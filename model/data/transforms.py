@@ -22,6 +22,7 @@ from PIL import Image
 
 from model.config import TransformConfig
 from model.data.frames import Frame
+from model.geometry import ray_factors
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,7 @@ def sample_params(rng: np.random.Generator, config: TransformConfig, height: int
     flip = bool(config.flip and rng.random() < 0.5)
     brightness, contrast, saturation = (factor(a) for a in (config.brightness, config.contrast, config.saturation))
     # Drawn last, and only when on, so that configs without it keep their random stream.
-    rotation = tuple(rng.uniform(-config.rotate_deg, config.rotate_deg, 3)) if config.rotate_deg else (0.0, 0.0, 0.0)
+    turn = rng.uniform(-config.rotate_deg, config.rotate_deg, 3) if config.rotate_deg else np.zeros(3)
     return TransformParams(
         resize=(new_h, new_w),
         crop=(top, left, crop_h, crop_w),
@@ -57,7 +58,7 @@ def sample_params(rng: np.random.Generator, config: TransformConfig, height: int
         brightness=brightness,
         contrast=contrast,
         saturation=saturation,
-        rotation=tuple(float(a) for a in rotation),
+        rotation=tuple(float(a) for a in turn),
     )
 
 
@@ -79,8 +80,9 @@ def rotate_frame(frame: Frame, rotation: np.ndarray) -> Frame:
     """
     k = frame.intrinsics
     h, w = frame.depth.shape
-    vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
-    rays = np.stack([(uu - k.cx) / k.fx, (vv - k.cy) / k.fy, np.ones_like(uu)], -1) @ rotation  # rows: R^T p
+    x, y = ray_factors(k)
+    grid = np.stack(np.broadcast_arrays(x[None, :], y[:, None], np.float32(1.0)), -1)
+    rays = grid @ rotation  # rows: R^T p
     dz = rays[..., 2]
     ahead = dz > 1e-6
     dz_safe = np.where(ahead, dz, 1.0)
