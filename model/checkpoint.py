@@ -27,10 +27,16 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     return torch.load(path, map_location="cpu", weights_only=True)
 
 
-def load_generator(path: Path) -> tuple[GlobalGenerator, RunConfig, dict[str, Any]]:
-    """The generator of a checkpoint, in eval mode, with the run config it was built from."""
+def load_generator(path: Path, flip_average: bool | None = None) -> tuple[GlobalGenerator, RunConfig, dict[str, Any]]:
+    """The generator of a checkpoint, in eval mode, with the run config it was built from.
+
+    ``flip_average`` (None: as trained) changes only how the weights are run, so a
+    checkpoint can be scored and exported with or without it.
+    """
     state = load_checkpoint(path)
     config = RunConfig.model_validate(state["config"])
+    if flip_average is not None:
+        config.generator = config.generator.model_copy(update={"flip_average": flip_average})
     generator = GlobalGenerator(config.generator)
     generator.load_state_dict(state["generator"])  # strict: a config mismatch fails loudly
     return generator.eval(), config, state

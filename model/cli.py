@@ -42,13 +42,17 @@ def evaluate(
     min_depth: Annotated[float, typer.Option(help="valid ground truth from (m)")] = 0.1,
     max_depth: Annotated[float, typer.Option(help="valid ground truth up to (m)")] = 10.0,
     samples: Annotated[int, typer.Option(help="rows in samples.png")] = 4,
+    flip_average: Annotated[
+        bool | None,
+        typer.Option(help="checkpoints: also run the mirrored image and average (default: as trained)"),
+    ] = None,
 ) -> None:
     """Score a model with the paper's metrics and print the paper's table."""
     from model.config import DataSource
     from model.data.sources import describe, open_source
     from model.evaluate import evaluate_frames, load_predictor, write_report
 
-    predict, label = load_predictor(model)
+    predict, label = load_predictor(model, flip_average)
     source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file)
     result, per_image, grid = evaluate_frames(
         predict, open_source(source), min_m=min_depth, max_m=max_depth, samples=samples, progress=True
@@ -68,12 +72,16 @@ def export(
     metrics: Annotated[list[Path], typer.Option(help="metrics.json from evaluate (repeatable)", exists=True)],
     parity_image: Annotated[Path, typer.Option(help="a real RGB image for the parity check", exists=True)],
     registry: Annotated[Path, typer.Option(help="registry folder")] = Path("weights"),
+    flip_average: Annotated[
+        bool | None,
+        typer.Option(help="also run the mirrored image and average (default: as trained)"),
+    ] = None,
 ) -> None:
     """Export ONNX + TorchScript, check parity with eager PyTorch, publish a version."""
     from model.card import load_card
     from model.export import export_and_publish
 
-    target = export_and_publish(checkpoint, registry, name, version, metrics, parity_image)
+    target = export_and_publish(checkpoint, registry, name, version, metrics, parity_image, flip_average)
     card = load_card(target)
     for file_name, digest in card.files.items():
         typer.echo(f"{file_name}  sha256 {digest}")

@@ -42,6 +42,11 @@ class GeneratorConfig(_Strict):
         description="beyond the paper: the network runs at 1/work_scale of the input's resolution "
         "(average pool in, bilinear upsample out); training feeds images already at that scale",
     )
+    flip_average: bool = Field(
+        False,
+        description="beyond the paper, inference only: also run the mirrored image and average the two "
+        "depths (test-time augmentation); twice the compute, the same weights",
+    )
 
     @property
     def core_multiple(self) -> int:
@@ -201,6 +206,16 @@ def apply_overrides(tree: dict[str, Any], overrides: list[str]) -> dict[str, Any
             node = node[part]
         node[path[-1]] = value
     return out
+
+
+def complete_config(saved: dict[str, Any]) -> dict[str, Any]:
+    """A saved run config with every key filled in.
+
+    Runs save their whole config, so a key missing from an older run is one added
+    since, which that run used at its default: filling it in keeps it out of
+    report diffs and lets the run resume.
+    """
+    return RunConfig.model_validate(saved).model_dump(mode="json")
 
 
 def load_config(path: Path | None, overrides: list[str] = ()) -> RunConfig:

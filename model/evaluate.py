@@ -70,21 +70,27 @@ def evaluate_frames(
     return acc.result(), per_image, grid
 
 
-def load_predictor(path: Path) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
+def load_predictor(path: Path, flip_average: bool | None = None) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
     """A depth predictor and a label from a checkpoint (.pt) or a published version folder.
 
     A version folder is checked against its card (sha256) and run the way the
-    service runs it: ONNX Runtime, then the card's depth encoding.
+    service runs it: ONNX Runtime, then the card's depth encoding. Its flip
+    average is baked into the exported graph, so ``flip_average`` applies to
+    checkpoints only (None: as trained).
     """
     path = Path(path)
     if path.is_dir():
+        if flip_average is not None:
+            raise ValueError(f"{path}: a published version runs as exported; flip averaging is set at export")
         card = load_card(path)
         verify_files(path, card)
         runner = OnnxGenerator(path / ONNX_FILE, card.input_multiple)
         return (lambda rgb: card.depth_encoding.decode(runner.predict_raw(rgb))), f"{card.name} {card.version} (ONNX)"
-    generator, config, state = load_generator(path)
+    generator, config, state = load_generator(path, flip_average)
     runner = TorchModuleGenerator(generator, config.generator.input_multiple)
-    return (lambda rgb: config.depth.decode(runner.predict_raw(rgb))), f"rgb2cloud ({path.name}, step {state['step']})"
+    flip = ", flip-averaged" if config.generator.flip_average else ""
+    label = f"rgb2cloud ({path.name}, step {state['step']}{flip})"
+    return (lambda rgb: config.depth.decode(runner.predict_raw(rgb))), label
 
 
 def _fmt(value: float | None) -> str:

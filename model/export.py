@@ -135,12 +135,17 @@ def export_and_publish(
     version: str,
     metrics_files: list[Path],
     parity_image: Path,
+    flip_average: bool | None = None,
 ) -> Path:
-    """Export, check parity, and publish ``<registry>/<name>/<version>/`` with its card."""
+    """Export, check parity, and publish ``<registry>/<name>/<version>/`` with its card.
+
+    ``flip_average`` (None: as trained) is baked into the exported graph and
+    recorded in the card's generator config.
+    """
     target = Path(registry) / name / version
     if target.exists():
         raise FileExistsError(f"{target} already exists: versions are immutable, publish a new one")
-    generator, config, state = load_generator(checkpoint)
+    generator, config, state = load_generator(checkpoint, flip_average)
     readers = [open_source(s) for s in config.data.train]
     data = []
     for source, reader in zip(config.data.train, readers, strict=True):

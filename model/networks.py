@@ -53,12 +53,18 @@ class GlobalGenerator(nn.Module):
     320x240 one does, and the net sees the whole frame instead of a crop. The
     trainer feeds frames already at the working scale (``at_working_scale``), so
     the losses and the discriminators work where the network does.
+
+    With ``flip_average`` the full-size path also predicts the left-right mirror
+    and averages it back in: a mirrored room is still a plausible room, so the two
+    predictions err differently and their mean errs less. Training never takes
+    this path; it lives in the graph so that every exported file carries it.
     """
 
     def __init__(self, config: GeneratorConfig):
         super().__init__()
         self.config = config
-        self.work_scale = config.work_scale  # a plain int, so TorchScript can read it
+        self.work_scale = config.work_scale  # plain values, so TorchScript can read them
+        self.flip_average = config.flip_average
         ngf = config.ngf
         layers: list[nn.Module] = [
             nn.ReflectionPad2d(3),
@@ -82,8 +88,16 @@ class GlobalGenerator(nn.Module):
         self.model = nn.Sequential(*layers)
 
     def forward(self, x: torch.Tensor, at_working_scale: bool = False) -> torch.Tensor:
+        if at_working_scale:
+            return self.model(x)
+        if self.flip_average:
+            mirrored = torch.flip(self._full_size(torch.flip(x, [3])), [3])
+            return 0.5 * (self._full_size(x) + mirrored)
+        return self._full_size(x)
+
+    def _full_size(self, x: torch.Tensor) -> torch.Tensor:
         k = self.work_scale
-        if k == 1 or at_working_scale:
+        if k == 1:
             return self.model(x)
         y = self.model(F.avg_pool2d(x, k))
         return F.interpolate(y, scale_factor=float(k), mode="bilinear", align_corners=False)

@@ -27,7 +27,7 @@ from PIL import Image
 
 from model.baselines import fit_baselines, score_baselines
 from model.card import ModelCard, load_card
-from model.config import RunConfig
+from model.config import complete_config
 from model.data.frames import Frame
 from model.data.manifest import ManifestReader
 from model.data.sevenscenes import SevenScenesReader
@@ -59,19 +59,15 @@ class ReportInputs:
     max_m: float = 10.0
 
 
-def complete_config(saved: dict) -> dict:
-    """A saved run config with every key filled in.
-
-    Runs save their whole config, so a key missing from an older run is one added
-    since, which that run used at its default: filling it in keeps it out of the diff.
-    """
-    return RunConfig.model_validate(saved).model_dump(mode="json")
-
-
 def training_config(path: Path) -> dict:
-    """The complete run config a checkpoint or a published version was trained with."""
+    """The complete run config a checkpoint or a published version was trained with.
+
+    A version's generator entry is the one it was exported with, so that how it
+    runs (the flip average) shows in the ablation beside how it was trained.
+    """
     if path.is_dir():
-        return complete_config(load_card(path).training.config)
+        card = load_card(path)
+        return complete_config({**card.training.config, "generator": card.generator.model_dump(mode="json")})
     from model.checkpoint import load_checkpoint
 
     return complete_config(load_checkpoint(path)["config"])
@@ -155,7 +151,7 @@ def build_report(inputs: ReportInputs) -> Path:
     rows = {f"**{label}**": ours}
     curves = {label: [r["pc_rmse"] for r in per_image]}
     ablation_lines = []
-    base_config = card.training.config
+    base_config = training_config(inputs.model)
     unseen = ManifestReader(inputs.unseen)
     unseen_rows = {}
     for name, path in inputs.compare.items():

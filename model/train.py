@@ -31,7 +31,7 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from model.checkpoint import load_checkpoint, save_checkpoint
-from model.config import RunConfig
+from model.config import RunConfig, complete_config
 from model.data.dataset import ConcatFrames, StepBatchSampler, TrainingSet
 from model.data.sources import open_source
 from model.evaluate import evaluate_frames
@@ -125,7 +125,7 @@ def _unwrap(module: nn.Module) -> nn.Module:
 
 
 def _check_resumable(saved: dict, config: RunConfig) -> None:
-    now = config.model_dump(mode="json")
+    saved, now = complete_config(saved), config.model_dump(mode="json")
     for section in FROZEN_ON_RESUME:
         if saved[section] != now[section]:
             raise ValueError(

@@ -69,6 +69,19 @@ def test_parity_at_two_sizes_one_off_grid(trained_checkpoint, tmp_path):
     assert runner.predict_raw(image[: 481 - 4, : 641 - 6]).shape == (477, 635)
 
 
+def test_a_flip_averaged_export_keeps_parity_and_is_mirror_equivariant(trained_checkpoint, tmp_path):
+    _, config, _ = load_generator(trained_checkpoint)
+    averaged, averaged_config, _ = load_generator(trained_checkpoint, flip_average=True)
+    assert averaged_config.generator.flip_average and not config.generator.flip_average
+    export_onnx(averaged, tmp_path / ONNX_FILE)
+    export_torchscript(averaged, tmp_path / TORCHSCRIPT_FILE)
+    image = np.asarray(Image.open(TUM_FRAME / "TUM_color.png").convert("RGB"))
+    assert max(check_parity(averaged, tmp_path, image).values()) <= 1e-4
+    runner = OnnxGenerator(tmp_path / ONNX_FILE, config.generator.input_multiple)
+    onnx_depth, mirrored = runner.predict_raw(image), runner.predict_raw(image[:, ::-1])
+    np.testing.assert_allclose(mirrored, onnx_depth[:, ::-1], atol=1e-5)
+
+
 def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_checkpoint, evaluated, tmp_path):
     out, _ = evaluated
     args = export_args(trained_checkpoint, out / "metrics.json", tmp_path / "registry")

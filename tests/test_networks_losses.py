@@ -40,6 +40,21 @@ def test_work_scale_runs_the_network_on_a_pooled_image_and_upsamples_back():
     assert g(torch.randn(1, 3, 12, 20), at_working_scale=True).shape == (1, 1, 12, 20)
 
 
+def test_flip_average_is_the_mean_with_the_mirrored_prediction_at_inference_only():
+    torch.manual_seed(0)
+    config = GeneratorConfig(ngf=4, n_downsample=2, n_blocks=1, work_scale=2)
+    plain = GlobalGenerator(config).eval()
+    averaged = GlobalGenerator(config.model_copy(update={"flip_average": True})).eval()
+    averaged.load_state_dict(plain.state_dict())
+    x = torch.randn(1, 3, 24, 40)
+    expected = 0.5 * (plain(x) + plain(x.flip(3)).flip(3))
+    torch.testing.assert_close(averaged(x), expected)
+    assert not torch.allclose(averaged(x), plain(x))
+    torch.testing.assert_close(averaged(x.flip(3)), averaged(x).flip(3))  # mirror-equivariant by construction
+    core = x[..., :12, :20]  # the trainer's path is untouched
+    assert torch.equal(averaged(core, at_working_scale=True), plain(core, at_working_scale=True))
+
+
 def test_generator_layout_follows_the_paper():
     g = GlobalGenerator(GeneratorConfig(ngf=4, n_downsample=2, n_blocks=3))
     layers = list(g.model)

@@ -65,6 +65,17 @@ def test_resume_on_other_settings_records_each_stretch_of_hardware(tmp_path):
     assert torch.load(tmp_path / "c/checkpoints/last.pt", weights_only=True)["hardware"] == hardware
 
 
+def test_a_checkpoint_saved_before_a_key_existed_still_resumes(tmp_path):
+    config = write_config(tmp_path / "c.yaml", tiny_config(tmp_path / "run", train={"steps": 4, "checkpoint_every": 2}))
+    run_cli("train", str(config), "-s", "train.steps=2")
+    last = tmp_path / "run/checkpoints/last.pt"
+    state = torch.load(last, weights_only=True)
+    del state["config"]["generator"]["flip_average"]  # as written before the key was added
+    torch.save(state, last)
+    run_cli("train", str(config), "--resume")
+    assert torch.load(last, weights_only=True)["step"] == 4
+
+
 def test_resume_refuses_a_different_network(tmp_path):
     config = write_config(tmp_path / "c.yaml", tiny_config(tmp_path / "run", train={"steps": 2}))
     run_cli("train", str(config))
