@@ -143,6 +143,7 @@ def build_report(inputs: ReportInputs) -> Path:
     local.mkdir(parents=True, exist_ok=True)
     card = load_card(inputs.model)
     run = card.training.config["train"]["out_dir"]  # the run folder its checkpoint came from
+    flip = " --flip-average" if card.generator.flip_average else ""  # how it was evaluated and exported
     predict, label = load_predictor(inputs.model)
     test = SevenScenesReader(inputs.root, inputs.test_frames)
     split = f"{inputs.root.name} {inputs.test_frames}"
@@ -264,9 +265,10 @@ def build_report(inputs: ReportInputs) -> Path:
         *_recipe_section(inputs.recipe),
         "```sh",
         f"rgb2cloud evaluate {run}/checkpoints/best.pt --format 7scenes --root {inputs.root} "
-        f"--frames {inputs.test_frames} --out {run}/eval-test",
-        f"rgb2cloud evaluate {run}/checkpoints/best.pt --format csv --root {inputs.unseen} --out {run}/eval-unseen",
-        f"rgb2cloud export {run}/checkpoints/best.pt --name {card.name} --version {card.version} "
+        f"--frames {inputs.test_frames} --out {run}/eval-test{flip}",
+        f"rgb2cloud evaluate {run}/checkpoints/best.pt --format csv --root {inputs.unseen} "
+        f"--out {run}/eval-unseen{flip}",
+        f"rgb2cloud export {run}/checkpoints/best.pt --name {card.name} --version {card.version}{flip} "
         f"--metrics {run}/eval-test/metrics.json --metrics {run}/eval-unseen/metrics.json "
         f"--parity-image {os.path.normpath(unseen.path.parent / unseen.rows[0][0])}",
         f"rgb2cloud baselines --format 7scenes --root {inputs.root} --train-frames {inputs.train_frames} "

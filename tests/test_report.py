@@ -9,10 +9,10 @@ import numpy as np
 from conftest import REPO, SEVEN_SCENES, run_cli
 from PIL import Image
 
-from model.config import load_config
+from model.config import complete_config, load_config
 from model.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
 from model.render import render_points
-from model.report import complete_config, config_diff
+from model.report import config_diff
 
 
 def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, trained_checkpoint, tmp_path):
