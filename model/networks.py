@@ -55,9 +55,10 @@ class GlobalGenerator(nn.Module):
     the losses and the discriminators work where the network does.
 
     With ``flip_average`` the full-size path also predicts the left-right mirror
-    and averages it back in: a mirrored room is still a plausible room, so the two
-    predictions err differently and their mean errs less. Training never takes
-    this path; it lives in the graph so that every exported file carries it.
+    and averages it back in (test-time augmentation): the same weights, a second
+    pass. Whether it helps depends on the data, so measure it on validation frames
+    (on 7-Scenes it did not; see the README). Training never takes this path; it
+    lives in the graph so that every exported file carries it.
     """
 
     def __init__(self, config: GeneratorConfig):
