@@ -31,12 +31,14 @@ def load_generator(path: Path, flip_average: bool | None = None) -> tuple[Global
     """The generator of a checkpoint, in eval mode, with the run config it was built from.
 
     ``flip_average`` (None: as trained) changes only how the weights are run, so a
-    checkpoint can be scored and exported with or without it.
+    checkpoint can be scored and exported with or without it. A run with ``optim.ema``
+    is judged by its averaged weights, so those are the ones loaded; the raw weights
+    beside them only serve ``--resume``.
     """
     state = load_checkpoint(path)
     config = RunConfig.model_validate(state["config"])
     if flip_average is not None:
         config.generator = config.generator.model_copy(update={"flip_average": flip_average})
     generator = GlobalGenerator(config.generator)
-    generator.load_state_dict(state["generator"])  # strict: a config mismatch fails loudly
+    generator.load_state_dict(state.get("generator_ema", state["generator"]))  # strict: a config mismatch fails loudly
     return generator.eval(), config, state

@@ -13,6 +13,7 @@ so a resumed run repeats an uninterrupted one bit for bit on the same device.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import os
@@ -113,6 +114,16 @@ def weights_digest(*modules: nn.Module) -> str:
     return digest.hexdigest()
 
 
+@torch.no_grad()
+def update_average(average: nn.Module, net: nn.Module, decay: float) -> None:
+    """average <- decay * average + (1 - decay) * net, tensor by tensor (integer buffers copied)."""
+    for mean, now in zip(average.state_dict().values(), net.state_dict().values(), strict=True):
+        if mean.is_floating_point():
+            mean.lerp_(now, 1.0 - decay)
+        else:
+            mean.copy_(now)
+
+
 def _split(outputs: list[list[torch.Tensor]], n: int) -> tuple[list[list[torch.Tensor]], list[list[torch.Tensor]]]:
     """Split D's outputs for a [fake; real] batch into the fake and the real halves."""
     fake = [[t[:n] for t in scale] for scale in outputs]
@@ -160,12 +171,16 @@ def train(config: RunConfig, resume: bool = False) -> dict:
     amp_dtype = torch.bfloat16 if use_amp and torch.cuda.is_bf16_supported() else torch.float16
     scaler = torch.amp.GradScaler(device.type, enabled=use_amp and amp_dtype == torch.float16)
 
+    # The moving average of G (optim.ema) is what validation scores and checkpoints publish.
+    average = copy.deepcopy(generator).eval() if config.optim.ema else None
     start_step, best, train_seconds = 0, None, 0.0
     segments: list[list] = []  # [first_step, hardware] per stretch of training on one setup
     if resume:
         state = load_checkpoint(ckpt_dir / "last.pt")
         _check_resumable(state["config"], config)
         generator.load_state_dict(state["generator"])
+        if average is not None:  # an average switched on at resume starts from the current weights
+            average.load_state_dict(state.get("generator_ema", state["generator"]))
         discriminator.load_state_dict(state["discriminator"])
         opt_g.load_state_dict(state["opt_g"])
         opt_d.load_state_dict(state["opt_d"])
@@ -201,7 +216,7 @@ def train(config: RunConfig, resume: bool = False) -> dict:
         segments.append([start_step, hardware])
 
     def checkpoint_state(step: int) -> dict:
-        return {
+        state = {
             "generator": _unwrap(generator).state_dict(),
             "discriminator": _unwrap(discriminator).state_dict(),
             "opt_g": opt_g.state_dict(),
@@ -214,12 +229,16 @@ def train(config: RunConfig, resume: bool = False) -> dict:
             "hardware_segments": segments,
             "config": config.model_dump(mode="json"),
         }
+        if average is not None:
+            state["generator_ema"] = average.state_dict()
+        return state
 
     def validate(step: int) -> dict | None:
         nonlocal best
         if val_frames is None:
             return None
-        net = _unwrap(generator).eval()
+        _unwrap(generator).eval()
+        net = average if average is not None else _unwrap(generator)
         runner = TorchModuleGenerator(net, config.generator.input_multiple)
         result, _, grid = evaluate_frames(
             lambda rgb: config.depth.decode(runner.predict_raw(rgb)),
@@ -229,7 +248,7 @@ def train(config: RunConfig, resume: bool = False) -> dict:
             scale=config.data.val_scale,
             samples=4,
         )
-        net.train()
+        _unwrap(generator).train()
         for key in ("rel", "rmse", "log10", "delta1", "delta2", "delta3", "pc_rmse_mean"):
             writer.add_scalar(f"val/{key}", result[key], step)
         (out / "samples").mkdir(exist_ok=True)
@@ -283,6 +302,8 @@ def train(config: RunConfig, resume: bool = False) -> dict:
         opt_g.zero_grad(set_to_none=True)
         scaler.scale(loss_g).backward()
         scaler.step(opt_g)
+        if average is not None:
+            update_average(average, _unwrap(generator), config.optim.ema_at(step))
 
         # Discriminator: the same fake batch (detached) against real pairs with holes filled.
         with torch.autocast(device.type, dtype=amp_dtype, enabled=use_amp):
