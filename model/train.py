@@ -233,12 +233,7 @@ def train(config: RunConfig, resume: bool = False) -> dict:
             state["generator_ema"] = average.state_dict()
         return state
 
-    def validate(step: int) -> dict | None:
-        nonlocal best
-        if val_frames is None:
-            return None
-        _unwrap(generator).eval()
-        net = average if average is not None else _unwrap(generator)
+    def score_on_val(net: nn.Module) -> tuple[dict, list]:
         runner = TorchModuleGenerator(net, config.generator.input_multiple)
         result, _, grid = evaluate_frames(
             lambda rgb: config.depth.decode(runner.predict_raw(rgb)),
@@ -248,9 +243,21 @@ def train(config: RunConfig, resume: bool = False) -> dict:
             scale=config.data.val_scale,
             samples=4,
         )
+        return result, grid
+
+    def validate(step: int) -> dict | None:
+        nonlocal best
+        if val_frames is None:
+            return None
+        _unwrap(generator).eval()
+        result, grid = score_on_val(average if average is not None else _unwrap(generator))
+        # With an average, the raw weights are scored too ("val_raw/"): the average's own ablation.
+        raw = score_on_val(_unwrap(generator))[0] if average is not None else None
         _unwrap(generator).train()
         for key in ("rel", "rmse", "log10", "delta1", "delta2", "delta3", "pc_rmse_mean"):
             writer.add_scalar(f"val/{key}", result[key], step)
+            if raw is not None:
+                writer.add_scalar(f"val_raw/{key}", raw[key], step)
         (out / "samples").mkdir(exist_ok=True)
         sample_grid(grid).save(out / "samples" / f"step_{step:07d}.png")
         score = result[loop.select_metric]

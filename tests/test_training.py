@@ -60,8 +60,11 @@ def test_resume_repeats_the_uninterrupted_run(tmp_path):
 
 
 def test_a_weight_average_is_what_the_checkpoint_publishes(tmp_path):
-    config = write_config(tmp_path / "c.yaml", tiny_config(tmp_path / "run", train={"steps": 6}, optim={"ema": 0.5}))
+    config = write_config(
+        tmp_path / "c.yaml", tiny_config(tmp_path / "run", train={"steps": 6, "val_every": 6}, optim={"ema": 0.5})
+    )
     run_cli("train", str(config))
+    assert set(_scalars(tmp_path / "run", "val_raw/rel")) == {0, 6}  # the raw weights, scored beside
     state = torch.load(tmp_path / "run/checkpoints/last.pt", weights_only=True)
     raw, average = state["generator"], state["generator_ema"]
     assert raw.keys() == average.keys()
