@@ -1,4 +1,4 @@
-"""The ``rgb2cloud`` command line: train, evaluate, export, baselines, report, client.
+"""The ``rgb2cloud`` command line: train, evaluate, export, baselines, novelty, report, client.
 
 Heavy imports happen inside each command, so ``rgb2cloud --help`` is instant and
 the torch-free parts of the project never pay for torch.
@@ -129,6 +129,24 @@ def baselines(
             "metrics": results,
         }
         (out / "baselines.json").write_text(json.dumps(payload, indent=2) + "\n")
+
+
+@app.command()
+def novelty(
+    root: Annotated[Path, typer.Argument(help="a 7-Scenes sequence folder (frame-NNNNNN.pose.txt)", exists=True)],
+    splits: Annotated[list[str], typer.Argument(help="TRAIN:HELD_OUT frame ranges, e.g. 0-669:720-799")],
+) -> None:
+    """How new each held-out slice's views are to its training frames (from camera poses)."""
+    from model.novelty import read_poses, view_novelty
+
+    typer.echo("| train | held out | frames | closest training view: distance (m) | turn (deg) |")
+    typer.echo("|---|---|---|---|---|")
+    for split in splits:
+        train_frames, sep, held_out = split.partition(":")
+        if not sep or not train_frames or not held_out:
+            raise typer.BadParameter(f"{split!r}: expected TRAIN:HELD_OUT, e.g. 0-669:720-799")
+        gap = view_novelty(read_poses(root, train_frames), read_poses(root, held_out))
+        typer.echo(f"| {train_frames} | {held_out} | {gap.frames} | {gap.distance_m:.2f} | {gap.angle_deg:.1f} |")
 
 
 @app.command()

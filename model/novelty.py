@@ -1,0 +1,63 @@
+"""How new held-out camera views are to a model, from 7-Scenes camera poses.
+
+A validation slice predicts test scores only if its views are as new to the model as
+the test views are. Frames taken right after the training frames look almost the same
+(the camera has barely moved), so they reward memorising neighbours; test frames far
+along the path show the room from new places. This module measures that gap, so a
+validation slice can be chosen to match the test split before anything is trained.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from model.data.frames import parse_frame_ranges
+
+#: A turn of this many degrees counts like one metre of camera travel when picking the
+#: closest training view; roughly where a Kinect view of a room stops overlapping much.
+DEGREES_PER_METRE = 30.0
+
+
+@dataclass(frozen=True)
+class Novelty:
+    """Medians over the held-out frames of the gap to each one's closest training view."""
+
+    frames: int
+    distance_m: float
+    angle_deg: float
+
+
+def read_poses(root: Path, frames: str) -> np.ndarray:
+    """The 4x4 camera-to-world poses (frame-NNNNNN.pose.txt) of the selected frames."""
+    poses = []
+    for number in parse_frame_ranges(frames):
+        path = Path(root) / f"frame-{number:06d}.pose.txt"
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no pose file")
+        pose = np.loadtxt(path, dtype=np.float64)
+        if pose.shape != (4, 4):
+            raise ValueError(f"{path}: expected a 4x4 pose, got shape {pose.shape}")
+        poses.append(pose)
+    return np.stack(poses)
+
+
+def view_novelty(train: np.ndarray, held_out: np.ndarray) -> Novelty:
+    """For each held-out view, the closest training view by metres + degrees / 30.
+
+    Position and viewing direction are combined because either alone misleads: a camera
+    on the same spot can look at another wall, and one pointing the same way can stand
+    across the room.
+    """
+    distance = np.linalg.norm(held_out[:, None, :3, 3] - train[None, :, :3, 3], axis=2)
+    cosine = np.clip(held_out[:, :3, 2] @ train[:, :3, 2].T, -1.0, 1.0)  # optical axes (+z)
+    angle = np.degrees(np.arccos(cosine))
+    closest = (distance + angle / DEGREES_PER_METRE).argmin(axis=1)
+    rows = np.arange(len(held_out))
+    return Novelty(
+        frames=len(held_out),
+        distance_m=float(np.median(distance[rows, closest])),
+        angle_deg=float(np.median(angle[rows, closest])),
+    )
