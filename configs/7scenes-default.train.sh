@@ -51,8 +51,8 @@ rgb2cloud train configs/7scenes-default.yaml --resume -s data.transform.flip=fal
 #    views, while the test views are new. `rgb2cloud novelty ../shared/data/7scenes-redkitchen
 #    0-759:780-799 0-759:850-999 0-669:720-799` measures it from the camera poses (closest
 #    training view, median over the held-out frames): 0.04 m / 14.2 deg for 780-799, 0.19 m /
-#    20.7 deg for the test split. So these runs repeat the split's own shape one level down:
-#    train on 0-669, leave a 50-frame gap, select on 720-799 (0.59 m / 19.4 deg, as new as the test
+#    20.6 deg for the test split. So these runs repeat the split's own shape one level down:
+#    train on 0-669, leave a 50-frame gap, select on 720-799 (0.59 m / 19.3 deg, as new as the test
 #    views). Each keeps a moving average of G's weights (optim.ema; TensorBoard val_raw/* scores the
 #    raw weights beside it), and the second adds the 200 aims-lab frames (another room, another
 #    camera). Side by side, one thread each (about 85 min). Decided before scoring them: a change is

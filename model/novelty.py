@@ -44,6 +44,18 @@ def read_poses(root: Path, frames: str) -> np.ndarray:
     return np.stack(poses)
 
 
+def _angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angles (radians) between every row of ``a`` and of ``b``.
+
+    The axes are normalised first (the published poses are orthonormal only to about
+    1e-4), and atan2 keeps near-identical directions at ~0 where arccos would not.
+    """
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=1, keepdims=True)
+    cross = np.linalg.norm(np.cross(a[:, None], b[None]), axis=2)
+    return np.arctan2(cross, a @ b.T)
+
+
 def view_novelty(train: np.ndarray, held_out: np.ndarray) -> Novelty:
     """For each held-out view, the closest training view by metres + degrees / 30.
 
@@ -52,8 +64,7 @@ def view_novelty(train: np.ndarray, held_out: np.ndarray) -> Novelty:
     across the room.
     """
     distance = np.linalg.norm(held_out[:, None, :3, 3] - train[None, :, :3, 3], axis=2)
-    cosine = np.clip(held_out[:, :3, 2] @ train[:, :3, 2].T, -1.0, 1.0)  # optical axes (+z)
-    angle = np.degrees(np.arccos(cosine))
+    angle = np.degrees(_angle_between(held_out[:, :3, 2], train[:, :3, 2]))  # optical axes (+z)
     closest = (distance + angle / DEGREES_PER_METRE).argmin(axis=1)
     rows = np.arange(len(held_out))
     return Novelty(

@@ -34,6 +34,7 @@ from model.data.sevenscenes import SevenScenesReader
 from model.evaluate import PAPER_TUM, beats, evaluate_frames, load_predictor, markdown_table
 from model.geometry import colours, point_cloud, xyz
 from model.metrics import METRIC_NAMES
+from model.novelty import read_poses, view_novelty
 from model.render import render_points
 from model.visualize import plot_pc_curve, sample_grid
 
@@ -120,6 +121,44 @@ def _recipe_section(recipe: Path | None) -> list[str]:
     return [f"Training (`sh {recipe}`):", "", "```sh", recipe.read_text().rstrip(), "```", "", "Then:", ""]
 
 
+def _frames_in(sources: list[dict], root: Path) -> str | None:
+    """The frame ranges a run config reads from the 7-Scenes sequence ``root``, or None."""
+    ranges = [
+        s["frames"]
+        for s in sources
+        if s["format"] == "7scenes" and Path(s["root"]).name == root.name and s.get("frames")
+    ]
+    return ",".join(ranges) or None
+
+
+def _selection_section(inputs: ReportInputs, configs: dict[str, dict]) -> list[str]:
+    """How new each run's validation views were to its training views, beside the test split's."""
+    uses: dict[tuple[str, str], list[str]] = {}
+    for name, config in configs.items():
+        train, val = _frames_in(config["data"]["train"], inputs.root), _frames_in(config["data"]["val"], inputs.root)
+        if train and val:
+            uses.setdefault((train, val), []).append(f"validation: {name}")
+    published_train = _frames_in(next(iter(configs.values()))["data"]["train"], inputs.root)
+    if published_train:
+        uses.setdefault((published_train, inputs.test_frames), []).append("**test split** of the published model")
+    lines = [
+        "## Model selection: how new the validation views are",
+        "",
+        "A validation slice ranks runs the way the test split would only if its views are about as new to "
+        "the model as the test views. For each held-out frame, the closest training view (camera poses; "
+        "1 m of travel counts like 30° of turn), median over the frames (`rgb2cloud novelty`):",
+        "",
+        "| train | held out | frames | distance (m) | turn (°) | used as |",
+        "|---|---|---|---|---|---|",
+    ]
+    for (train, held_out), names in uses.items():
+        gap = view_novelty(read_poses(inputs.root, train), read_poses(inputs.root, held_out))
+        lines.append(
+            f"| {train} | {held_out} | {gap.frames} | {gap.distance_m:.2f} | {gap.angle_deg:.1f} | {'; '.join(names)} |"
+        )
+    return [*lines, ""]
+
+
 def _card_section(card: ModelCard, model_dir: Path) -> list[str]:
     size_mb = sum((model_dir / f).stat().st_size for f in card.files) / 1e6
     g = card.generator
@@ -155,13 +194,15 @@ def build_report(inputs: ReportInputs) -> Path:
     base_config = training_config(inputs.model)
     unseen = ManifestReader(inputs.unseen)
     unseen_rows = {}
+    configs = {label: base_config}
     for name, path in inputs.compare.items():
+        configs[name] = training_config(path)
         other_predict, _ = load_predictor(path)
         result, other_images, _ = _score(other_predict, test, inputs)
         unseen_rows[name] = _score(other_predict, unseen, inputs)[0]
         rows[name] = result
         curves[name] = [r["pc_rmse"] for r in other_images]
-        diff = config_diff(base_config, training_config(path)) or ["(same training config)"]
+        diff = config_diff(base_config, configs[name]) or ["(same training config)"]
         ablation_lines.append(f"- **{name}** (`{path}`): " + "; ".join(diff))
 
     fitted = fit_baselines(SevenScenesReader(inputs.root, inputs.train_frames))
@@ -236,6 +277,7 @@ def build_report(inputs: ReportInputs) -> Path:
         "They hold dataset pixels, so they stay on your machine: the data is read in place and never copied "
         "into the repository. Run the command at the end to see them.",
         "",
+        *_selection_section(inputs, configs),
         "## Ablation: the paper's objective against our additions",
         "",
         "Each row below was scored on the same test frames; its line says how its training differed from "

@@ -51,6 +51,10 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
     # Compared rows are scored on the unseen scene too.
     unseen_section = text[text.index("## Generalisation") : text.index("## Reproduce")]
     assert "| eager checkpoint |" in unseen_section
+    # Validation and test views' distance from the training views, from the real poses.
+    selection = text[text.index("## Model selection") : text.index("## Ablation")]
+    assert "| 0-3 | 0-3 | 4 | 0.00 | 0.0 | validation: " in selection and "validation: eager checkpoint |" in selection
+    assert "| 0-3 | 850-851 | 2 |" in selection and "test split" in selection
     # Same training config apart from the output folder.
     assert "(same training config)" in text
     local = ("7scenes-samples.png", "7scenes-pointcloud.png", "unseen-sample.png", "unseen-pointcloud.png")
