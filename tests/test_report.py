@@ -12,7 +12,7 @@ from PIL import Image
 from model.config import complete_config, load_config
 from model.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
 from model.render import render_points
-from model.report import config_diff
+from model.report import config_diff, published_checkpoint
 
 
 def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, trained_checkpoint, tmp_path):
@@ -62,6 +62,13 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
         assert Image.open(out / "quality" / name).size[0] > 100
     # Nothing with dataset pixels lands outside the ignored folder.
     assert {p.name for p in (out / "quality").glob("*.png")} == {"pc_rmse_curve.png"}
+
+
+def test_a_refit_without_validation_frames_publishes_its_last_checkpoint():
+    config = load_config(REPO / "configs" / "7scenes-default.yaml").model_dump(mode="json")
+    assert published_checkpoint(config) == "runs/7scenes-dropout/checkpoints/best.pt"
+    config["data"]["val"] = []
+    assert published_checkpoint(config) == "runs/7scenes-dropout/checkpoints/last.pt"
 
 
 def test_config_diff_names_changed_leaves():
