@@ -139,12 +139,13 @@ def novelty(
     """How new each held-out slice's views are to its training frames (from camera poses)."""
     from model.novelty import read_poses, view_novelty
 
-    typer.echo("| train | held out | frames | closest training view: distance (m) | turn (deg) |")
-    typer.echo("|---|---|---|---|---|")
-    for split in splits:
-        train_frames, sep, held_out = split.partition(":")
+    pairs = [split.partition(":") for split in splits]
+    for split, (train_frames, sep, held_out) in zip(splits, pairs, strict=True):
         if not sep or not train_frames or not held_out:
             raise typer.BadParameter(f"{split!r}: expected TRAIN:HELD_OUT, e.g. 0-669:720-799")
+    typer.echo("| train | held out | frames | closest training view: distance (m) | turn (deg) |")
+    typer.echo("|---|---|---|---|---|")
+    for train_frames, _, held_out in pairs:
         gap = view_novelty(read_poses(root, train_frames), read_poses(root, held_out))
         typer.echo(f"| {train_frames} | {held_out} | {gap.frames} | {gap.distance_m:.2f} | {gap.angle_deg:.1f} |")
 

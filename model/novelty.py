@@ -47,8 +47,8 @@ def read_poses(root: Path, frames: str) -> np.ndarray:
 def _angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angles (radians) between every row of ``a`` and of ``b``.
 
-    The axes are normalised first (the published poses are orthonormal only to about
-    1e-4), and atan2 keeps near-identical directions at ~0 where arccos would not.
+    The axes are normalised first (the published 7-Scenes rotations are not exactly
+    orthonormal), and atan2 keeps near-identical directions at ~0 where arccos would not.
     """
     a = a / np.linalg.norm(a, axis=1, keepdims=True)
     b = b / np.linalg.norm(b, axis=1, keepdims=True)

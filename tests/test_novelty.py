@@ -38,8 +38,12 @@ def test_the_command_reads_7scenes_pose_files(tmp_path):
     table = run_cli("novelty", str(tmp_path), "0-1:2", "0-1:3").stdout
     assert "| 0-1 | 2 | 1 | 0.10 | 0.0 |" in table and "| 0-1 | 3 | 1 | 1.10 | 0.0 |" in table
     bad = subprocess.run(
-        [sys.executable, "-m", "model", "novelty", str(tmp_path), "0-1"], cwd=REPO, capture_output=True, text=True
+        [sys.executable, "-m", "model", "novelty", str(tmp_path), "0-1:2", "0-1"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
     )
     assert bad.returncode != 0 and "TRAIN:HELD_OUT" in bad.stderr
+    assert bad.stdout == ""  # checked before any row is printed
     with pytest.raises(FileNotFoundError, match="no pose file"):
         read_poses(tmp_path, "0-4")
