@@ -148,7 +148,8 @@ def _selection_section(inputs: ReportInputs, configs: dict[str, dict]) -> list[s
         train, val = _frames_in(config["data"]["train"], inputs.root), _frames_in(config["data"]["val"], inputs.root)
         if train and val:
             uses.setdefault((train, val), []).append(f"validation: {name}")
-    published_train = _frames_in(next(iter(configs.values()))["data"]["train"], inputs.root)
+    published = next(iter(configs.values()))
+    published_train = _frames_in(published["data"]["train"], inputs.root)
     if published_train:
         uses.setdefault((published_train, inputs.test_frames), []).append("**test split** of the published model")
     lines = [
@@ -166,6 +167,13 @@ def _selection_section(inputs: ReportInputs, configs: dict[str, dict]) -> list[s
         lines.append(
             f"| {train} | {held_out} | {gap.frames} | {gap.distance_m:.2f} | {gap.angle_deg:.1f} | {'; '.join(names)} |"
         )
+    if not published["data"]["val"]:
+        lines += [
+            "",
+            "The published model has no validation frames of its own: it is a refit on the train frames "
+            f"{published_train or 'of its config'} with a recipe that a run above chose on its validation "
+            "frames (the Reproduce section says which), and it publishes its last checkpoint.",
+        ]
     return [*lines, ""]
 
 

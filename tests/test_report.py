@@ -12,7 +12,7 @@ from PIL import Image
 from model.config import complete_config, load_config
 from model.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
 from model.render import render_points
-from model.report import config_diff, published_checkpoint
+from model.report import ReportInputs, _selection_section, config_diff, published_checkpoint
 
 
 def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, trained_checkpoint, tmp_path):
@@ -69,6 +69,19 @@ def test_a_refit_without_validation_frames_publishes_its_last_checkpoint():
     assert published_checkpoint(config) == "runs/7scenes-dropout/checkpoints/best.pt"
     config["data"]["val"] = []
     assert published_checkpoint(config) == "runs/7scenes-dropout/checkpoints/last.pt"
+
+
+def test_the_selection_section_says_when_the_published_model_is_a_refit(tmp_path):
+    chosen = load_config(REPO / "configs" / "7scenes-default.yaml").model_dump(mode="json")
+    chosen["data"]["train"][0]["frames"], chosen["data"]["val"][0]["frames"] = "0-3", "6-7"
+    refit = copy.deepcopy(chosen)
+    refit["data"]["train"][0]["frames"], refit["data"]["val"] = "0-7", []
+    inputs = ReportInputs(REPO, SEVEN_SCENES, REPO, {}, tmp_path, test_frames="850-851")
+    text = "\n".join(_selection_section(inputs, {"refit": refit, "chosen": chosen}))
+    assert "| 0-3 | 6-7 | 2 |" in text and "validation: chosen |" in text
+    assert "| 0-7 | 850-851 | 2 |" in text and "refit on the train frames 0-7" in text
+    # A published model chosen on its own validation frames gets no such sentence.
+    assert "refit" not in "\n".join(_selection_section(inputs, {"chosen": chosen}))
 
 
 def test_config_diff_names_changed_leaves():
