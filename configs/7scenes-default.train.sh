@@ -62,7 +62,14 @@ rgb2cloud train configs/7scenes-default.yaml --resume -s data.transform.flip=fal
 #    scores both runs once, whatever it says.
 SELECT_TRAIN='{format: 7scenes, root: ../shared/data/7scenes-redkitchen, frames: "0-669"}'
 SELECT_VAL='data.val=[{format: 7scenes, root: ../shared/data/7scenes-redkitchen, frames: "720-799"}]'
-AIMS='{format: csv, root: configs/aims-lab.csv, licence: "aims-lab (CMU-AI-Maker-Space/aims-slam): MIT licence"}'
+# aims-lab is read in place through a manifest written here (its intrinsics are not published,
+# so it borrows 7-Scenes' 585/585/320/240; depth is in millimetres).
+mkdir -p runs
+{ echo rgb,depth,depth_scale,fx,fy,cx,cy
+  for i in $(seq 0 199); do
+      echo "../../shared/data/aims-lab/rgb/$i.jpg,../../shared/data/aims-lab/depth/$i.png,1000,585,585,320,240"
+  done; } > runs/aims-lab.csv
+AIMS='{format: csv, root: runs/aims-lab.csv, licence: "aims-lab (CMU-AI-Maker-Space/aims-slam): MIT licence"}'
 rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s optim.ema=0.997 -s "data.train=[$SELECT_TRAIN]" \
     -s "$SELECT_VAL" -s train.out_dir=runs/select-base
 rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s optim.ema=0.997 \
