@@ -42,11 +42,23 @@ class GeneratorConfig(_Strict):
         description="beyond the paper: the network runs at 1/work_scale of the input's resolution "
         "(average pool in, bilinear upsample out); training feeds images already at that scale",
     )
+    dilations: list[int] = Field(
+        default_factory=list,
+        description="beyond the paper: the dilation of each residual block's first convolution "
+        "(one per block; empty = all 1, the paper). Widens what one output pixel sees, for the "
+        "room-scale cues that fix a view's absolute depth, with the same weights and compute",
+    )
     flip_average: bool = Field(
         False,
         description="beyond the paper, inference only: also run the mirrored image and average the two "
         "depths (test-time augmentation); twice the compute, the same weights",
     )
+
+    @model_validator(mode="after")
+    def _one_dilation_per_block(self) -> GeneratorConfig:
+        if self.dilations and (len(self.dilations) != self.n_blocks or min(self.dilations) < 1):
+            raise ValueError(f"dilations needs one value >= 1 per residual block ({self.n_blocks}), got {self.dilations}")
+        return self
 
     @property
     def core_multiple(self) -> int:

@@ -22,13 +22,20 @@ class ResnetBlock(nn.Module):
 
     The dropout is the paper's noise input Z (G: {X, Z} -> Y), realised as pix2pix
     does; it is active in ``train()`` mode only, so inference is deterministic.
+    A ``dilation`` above 1 spreads the first convolution's taps; it is zero-padded,
+    because reflection padding needs the map to be wider than the dilation and
+    the service takes images small enough for a 1/16-scale map to be a few pixels.
     """
 
-    def __init__(self, channels: int, dropout: float):
+    def __init__(self, channels: int, dropout: float, dilation: int = 1):
         super().__init__()
+        first: list[nn.Module] = (
+            [nn.ReflectionPad2d(1), nn.Conv2d(channels, channels, 3)]
+            if dilation == 1
+            else [nn.Conv2d(channels, channels, 3, padding=dilation, dilation=dilation)]
+        )
         layers: list[nn.Module] = [
-            nn.ReflectionPad2d(1),
-            nn.Conv2d(channels, channels, 3),
+            *first,
             _norm(channels),
             nn.ReLU(True),
         ]
@@ -42,8 +49,8 @@ class ResnetBlock(nn.Module):
 
 
 class GlobalGenerator(nn.Module):
-    """7x7 front-end, n_downsample stride-2 convs, n_blocks residual blocks,
-    n_downsample transposed convs, 7x7 output conv, tanh.
+    """7x7 front-end, n_downsample stride-2 convs, n_blocks residual blocks
+    (optionally dilated), n_downsample transposed convs, 7x7 output conv, tanh.
 
     Height and width must be multiples of ``config.input_multiple``; callers pad
     (``model.geometry.pad_to_multiple``) and crop back.
@@ -77,7 +84,8 @@ class GlobalGenerator(nn.Module):
             c = ngf * 2**i
             layers += [nn.Conv2d(c, c * 2, 3, stride=2, padding=1), _norm(c * 2), nn.ReLU(True)]
         c = ngf * 2**config.n_downsample
-        layers += [ResnetBlock(c, config.dropout) for _ in range(config.n_blocks)]
+        dilations = config.dilations or [1] * config.n_blocks
+        layers += [ResnetBlock(c, config.dropout, d) for d in dilations]
         for i in range(config.n_downsample):
             c = ngf * 2 ** (config.n_downsample - i)
             layers += [
