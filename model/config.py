@@ -57,7 +57,9 @@ class GeneratorConfig(_Strict):
     @model_validator(mode="after")
     def _one_dilation_per_block(self) -> GeneratorConfig:
         if self.dilations and (len(self.dilations) != self.n_blocks or min(self.dilations) < 1):
-            raise ValueError(f"dilations needs one value >= 1 per residual block ({self.n_blocks}), got {self.dilations}")
+            raise ValueError(
+                f"dilations needs one value >= 1 per residual block ({self.n_blocks}), got {self.dilations}"
+            )
         return self
 
     @property
