@@ -113,9 +113,11 @@ rgb2cloud train configs/7scenes-default.yaml -s train.threads=2 \
 # delta1 0.871 -> 0.891), but it still misses the paper's REL, log10 and delta1.
 
 # 9. Where the error is: on 720-799, runs/select-1000's last checkpoint over-predicts depth on
-#    every frame (ground-truth / predicted median 0.81 +- 0.04), and rescaling each prediction by
-#    that one number cuts REL from 0.255 to 0.105; on its own training frames it is 1.03 +- 0.02
-#    (`rgb2cloud evaluate ... --median-scaled` prints both). The error on new views is mostly one
+#    every frame (ground-truth / predicted median 0.81 +- 0.04, at most 0.92), and rescaling each
+#    prediction by that one number cuts REL from 0.255 to 0.105; on its own training frames 0-669
+#    the ratio is 1.01 +- 0.03 (`rgb2cloud evaluate runs/select-1000/checkpoints/last.pt --format
+#    7scenes --root ../shared/data/7scenes-redkitchen --frames 720-799 --median-scaled`, and
+#    --frames 0-669; the per-image ratios land in metrics.json). The error on new views is mostly one
 #    wrong distance per view, a room-scale cue that a 3x3 stack at 1/16 of the frame sees only in
 #    part. So the residual blocks' first convolutions are dilated 1, 2, 4, 8, 4, 2 (same weights,
 #    same compute): the selection run on step 6's split, and in parallel, to fit one session, the

@@ -46,21 +46,41 @@ def evaluate(
         bool | None,
         typer.Option(help="checkpoints: also run the mirrored image and average (default: as trained)"),
     ] = None,
+    median_scaled: Annotated[
+        bool,
+        typer.Option(
+            help="diagnostic: also score each prediction scaled by its ground-truth/predicted median ratio, "
+            "and print that ratio's spread (how much of the error is one distance per view)"
+        ),
+    ] = False,
 ) -> None:
     """Score a model with the paper's metrics and print the paper's table."""
     from model.config import DataSource
     from model.data.sources import describe, open_source
-    from model.evaluate import evaluate_frames, load_predictor, write_report
+    from model.evaluate import evaluate_frames, load_predictor, markdown_table, write_report
 
     predict, label = load_predictor(model, flip_average)
     source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file)
     result, per_image, grid = evaluate_frames(
-        predict, open_source(source), min_m=min_depth, max_m=max_depth, samples=samples, progress=True
+        predict,
+        open_source(source),
+        min_m=min_depth,
+        max_m=max_depth,
+        samples=samples,
+        progress=True,
+        median_scaled=median_scaled,
     )
     table = write_report(
         out, result, per_image, grid, split=describe(source), label=label, depth_range=(min_depth, max_depth)
     )
     typer.echo(table)
+    if median_scaled:
+        ratio = result["median_ratio"]
+        typer.echo(
+            f"\ndiagnostic, not the paper's protocol: ground-truth/predicted median per image "
+            f"{ratio['mean']:.3f} +- {ratio['std']:.3f}; with each prediction scaled by it:\n"
+            + markdown_table({f"{label}, median-scaled": result["median_scaled"]})
+        )
     typer.echo(f"wrote {out}/metrics.json, metrics.md, pc_rmse_curve.png, samples.png")
 
 

@@ -18,7 +18,7 @@ from model.card import ONNX_FILE, load_card, verify_files
 from model.checkpoint import load_generator
 from model.data.frames import Frame
 from model.data.transforms import resize_frame
-from model.metrics import METRIC_NAMES, MetricAccumulator
+from model.metrics import METRIC_NAMES, MetricAccumulator, median_ratio, valid_mask
 from model.runtime import OnnxGenerator, TorchModuleGenerator
 from model.visualize import plot_pc_curve, sample_grid
 
@@ -46,14 +46,21 @@ def evaluate_frames(
     scale: float = 1.0,
     samples: int = 0,
     progress: bool = False,
+    median_scaled: bool = False,
 ) -> tuple[dict, list[dict], list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
     """Predict every frame (resized by ``scale``) and average the per-image metrics.
 
     ``predict`` maps an HxWx3 uint8 image to HxW metres. Returns (the table row,
     per-image rows, up to ``samples`` evenly spaced (rgb, prediction, ground
     truth) triples for a sample grid).
+
+    ``median_scaled`` adds a diagnostic beside the row, from the same predictions:
+    the metrics after scaling each prediction by its ``median_ratio``
+    (``result["median_scaled"]``) and that ratio's mean and standard deviation
+    over the images (``result["median_ratio"]``; per image as ``median_ratio``).
     """
     acc = MetricAccumulator(min_m=min_m, max_m=max_m)
+    scaled = MetricAccumulator(min_m=min_m, max_m=max_m)
     per_image, grid = [], []
     keep = set(np.linspace(0, len(frames) - 1, samples).round().astype(int)) if samples else set()
     for i in tqdm(range(len(frames)), desc="evaluate", disable=not progress, unit="img"):
@@ -63,11 +70,19 @@ def evaluate_frames(
             frame = resize_frame(frame, round(h * scale), round(w * scale))
         pred = predict(frame.rgb)
         row = acc.add(pred, frame.depth, frame.intrinsics, frame.name)
+        if row and median_scaled:
+            row = {**row, "median_ratio": median_ratio(pred, frame.depth, valid_mask(frame.depth, min_m, max_m))}
+            scaled.add(pred * row["median_ratio"], frame.depth, frame.intrinsics, frame.name)
         if row:
             per_image.append({"name": frame.name, **row})
         if i in keep:
             grid.append((frame.rgb, pred, frame.depth))
-    return acc.result(), per_image, grid
+    result = acc.result()
+    if median_scaled:
+        ratios = [r["median_ratio"] for r in per_image]
+        result["median_scaled"] = scaled.result()
+        result["median_ratio"] = {"mean": float(np.mean(ratios)), "std": float(np.std(ratios))}
+    return result, per_image, grid
 
 
 def load_predictor(path: Path, flip_average: bool | None = None) -> tuple[Callable[[np.ndarray], np.ndarray], str]:

@@ -31,6 +31,16 @@ def valid_mask(gt: np.ndarray, min_m: float, max_m: float) -> np.ndarray:
     return np.isfinite(gt) & (gt >= min_m) & (gt <= max_m)
 
 
+def median_ratio(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray) -> float:
+    """Ground-truth median over predicted median at the valid pixels.
+
+    The per-image scale that median scaling (a diagnostic, never our headline
+    protocol) multiplies a prediction by: far from 1 on every image means the
+    error is mostly one wrong distance per view rather than a wrong shape.
+    """
+    return float(np.median(gt[valid]) / max(float(np.median(pred[valid])), 1e-6))
+
+
 def point_cloud_rmse(pred: np.ndarray, gt: np.ndarray, intrinsics: Intrinsics, valid: np.ndarray) -> float:
     """RMSE of the 3D distance between predicted and true points at the same pixels."""
     # Both points lie on the same pixel ray, so the distance is |d - d*| * |ray|.

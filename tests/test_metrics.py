@@ -48,3 +48,28 @@ def test_point_cloud_rmse_is_3d_distance_at_the_same_pixels():
 
 def test_figure_8_curve():
     np.testing.assert_allclose(pc_rmse_curve([0.1, 0.3, 0.5, 0.7], np.array([0.0, 0.2, 0.6, 1.0])), [0, 0.25, 0.75, 1])
+
+
+def test_median_scaling_diagnostic_separates_one_wrong_distance_from_a_wrong_shape():
+    """A view predicted 25% too far everywhere: raw REL 0.25, median-scaled REL 0, ratio 0.8."""
+    from model.data.frames import Frame
+    from model.evaluate import evaluate_frames
+
+    k = Intrinsics(1, 1, 0, 0, 3, 1)
+    frames = [
+        Frame(np.zeros((1, 3, 3), np.uint8), np.array([[1.0, 2.0, 0.0]], np.float32), k, "near"),
+        Frame(np.full((1, 3, 3), 1, np.uint8), np.array([[2.0, 4.0, 3.0]], np.float32), k, "far"),
+    ]
+    truth = {0: frames[0].depth, 1: frames[1].depth}
+
+    def too_far(rgb: np.ndarray) -> np.ndarray:
+        return np.where(truth[int(rgb[0, 0, 0])] > 0, truth[int(rgb[0, 0, 0])] * 1.25, 5.0)
+
+    result, per_image, _ = evaluate_frames(too_far, frames, min_m=0.1, max_m=10.0, median_scaled=True)
+    assert result["rel"] == pytest.approx(0.25)
+    assert result["median_scaled"]["rel"] == pytest.approx(0.0, abs=1e-6)
+    assert result["median_scaled"]["delta1"] == 1.0
+    assert result["median_ratio"] == pytest.approx({"mean": 0.8, "std": 0.0})
+    assert [r["median_ratio"] for r in per_image] == pytest.approx([0.8, 0.8])  # the missing pixel is ignored
+    plain, _, _ = evaluate_frames(too_far, frames, min_m=0.1, max_m=10.0)
+    assert "median_scaled" not in plain and plain["rel"] == result["rel"]

@@ -72,6 +72,32 @@ def test_weight_shapes_match_the_network(config):
     assert actual == config.weight_shapes()
 
 
+def test_dilated_blocks_keep_the_weights_and_run_on_maps_smaller_than_their_dilation():
+    plain = GeneratorConfig(ngf=4, n_downsample=2, n_blocks=2)
+    dilated = plain.model_copy(update={"dilations": [1, 4]})
+    g = GlobalGenerator(dilated).eval()
+    firsts = [
+        m.block[0] if isinstance(m.block[0], torch.nn.Conv2d) else m.block[1] for m in g.model if hasattr(m, "block")
+    ]
+    assert [(c.dilation, c.padding) for c in firsts] == [((1, 1), (0, 0)), ((4, 4), (4, 4))]
+    actual = [tuple(m.weight.shape) for m in g.modules() if isinstance(m, torch.nn.Conv2d | torch.nn.ConvTranspose2d)]
+    assert actual == plain.weight_shapes() == dilated.weight_shapes()
+    # 8x8 -> a 2x2 map at the blocks: reflection padding of 4 would fail there, zero padding does not.
+    assert g(torch.randn(1, 3, 8, 8)).shape == (1, 1, 8, 8)
+    reference = GlobalGenerator(plain).eval()
+    with torch.no_grad():  # the same weights, in the same order: only the taps' spacing differs
+        for mine, theirs in zip(g.parameters(), reference.parameters(), strict=True):
+            mine.copy_(theirs)
+    x = torch.randn(1, 3, 32, 32)
+    assert not torch.allclose(g(x), reference(x))
+
+
+@pytest.mark.parametrize("dilations", [[1], [1, 2, 4], [1, 0]])
+def test_dilations_need_one_positive_value_per_block(dilations):
+    with pytest.raises(ValueError, match="one value >= 1 per residual block"):
+        GeneratorConfig(n_blocks=2, dilations=dilations)
+
+
 def test_noise_z_is_dropout_in_training_only():
     torch.manual_seed(0)
     g = GlobalGenerator(GeneratorConfig(ngf=4, n_downsample=1, n_blocks=2, dropout=0.5))
