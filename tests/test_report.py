@@ -48,6 +48,12 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
     published = next(v for k, v in rows.items() if "tiny" in k)
     assert abs(published["rel"] - rows["eager checkpoint"]["rel"]) < 1e-4
     assert published["images"] == 2
+    # The scale diagnostic beside the published row, from the same predictions.
+    assert published["median_scaled"]["images"] == 2 and published["median_ratio"]["mean"] > 0
+    assert (
+        f"per test image, the ground-truth median over the predicted one is {published['median_ratio']['mean']:.3f}"
+        in text
+    )
     # Compared rows are scored on the unseen scene too.
     unseen_section = text[text.index("## Generalisation") : text.index("## Reproduce")]
     assert "| eager checkpoint |" in unseen_section
