@@ -1,9 +1,10 @@
 #!/bin/sh
 # How the bundled rgb2cloud-7scenes model and every run compared with it were trained, command by
 # command, on a 2-core CPU. `rgb2cloud report --recipe` copies this file into docs/quality.md.
-# configs/7scenes-default.yaml is the published recipe: 0.3.0 trained it on frames 0-759, and 0.4.0
-# is the same recipe refit on the whole train split, 0-799 (step 8). Runs with -s generator.dropout=0
-# predate the dropout.
+# configs/7scenes-default.yaml is the recipe that steps 1-8 start from: 0.3.0 trained it on frames
+# 0-759, and 0.4.0 is the same recipe refit on the whole train split, 0-799 (step 8). The published
+# 0.5.0 adds dilated residual blocks (-s 'generator.dilations=[1, 2, 4, 8, 4, 2]') and is refit the
+# same way (step 9). Runs with -s generator.dropout=0 predate the dropout.
 set -eu
 
 # 1. The previous default (0.2.0: 1400 steps, no dropout) and, on the same budget, the paper's
