@@ -1,7 +1,7 @@
 """``docs/quality.md`` and its figures, from one command: every number in it is computed here.
 
     rgb2cloud report weights/rgb2cloud-7scenes/1.0.0 \\
-        --root ../shared/data/7scenes-redkitchen --unseen configs/tum-fr3-office.csv \\
+        --root ../shared/data/7scenes-redkitchen --unseen runs/tum-fr3-office.csv \\
         --compare "paper objective only=runs/7scenes-default-paper-objective/checkpoints/best.pt"
 
 The published model is scored the way the service runs it (ONNX Runtime, after

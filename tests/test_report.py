@@ -6,7 +6,7 @@ import copy
 import json
 
 import numpy as np
-from conftest import REPO, SEVEN_SCENES, run_cli
+from conftest import REPO, SEVEN_SCENES, TUM_FRAME, run_cli
 from PIL import Image
 
 from model.config import complete_config, load_config
@@ -17,13 +17,18 @@ from model.report import ReportInputs, _selection_section, config_diff, publishe
 
 def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, trained_checkpoint, tmp_path):
     out = tmp_path / "docs"
+    unseen = tmp_path / "tum-fr3-office.csv"  # the unseen frame, read in place
+    unseen.write_text(
+        "rgb,depth,depth_scale,fx,fy,cx,cy\n"
+        f"{TUM_FRAME / 'TUM_color.png'},{TUM_FRAME / 'TUM_depth.png'},5000,535.4,539.2,320.1,247.6\n"
+    )
     run_cli(
         "report",
         str(registry / "tiny" / "0.1.0"),
         "--root",
         str(SEVEN_SCENES),
         "--unseen",
-        str(REPO / "configs" / "tum-fr3-office.csv"),
+        str(unseen),
         "--compare",
         f"eager checkpoint={trained_checkpoint}",
         "--train-frames",
