@@ -108,6 +108,11 @@ class LossConfig(_Strict):
     )
     feature_matching: float = Field(10.0, ge=0, description="mu in the paper")
     l1_depth: float = Field(0.0, ge=0, description="beyond the paper, opt-in: masked L1 between encoded depths")
+    gradient_matching: float = Field(
+        0.0,
+        ge=0,
+        description="beyond the paper, opt-in: masked L1 between the encoded depths' gradients at 4 scales",
+    )
 
 
 class OptimConfig(_Strict):

@@ -36,7 +36,7 @@ from model.config import RunConfig, complete_config
 from model.data.dataset import ConcatFrames, StepBatchSampler, TrainingSet
 from model.data.sources import open_source
 from model.evaluate import evaluate_frames
-from model.losses import GANLoss, feature_matching, fill_holes, masked_l1, patch_weights
+from model.losses import GANLoss, feature_matching, fill_holes, gradient_matching, masked_l1, patch_weights
 from model.machine import cpu_description
 from model.networks import GlobalGenerator, MultiscaleDiscriminator
 from model.runtime import TorchModuleGenerator
@@ -306,6 +306,9 @@ def train(config: RunConfig, resume: bool = False) -> dict:
             loss_l1 = masked_l1(fake, real, valid) if config.loss.l1_depth > 0 else None
             if loss_l1 is not None:
                 loss_g = loss_g + config.loss.l1_depth * loss_l1
+            loss_grad = gradient_matching(fake, real, valid) if config.loss.gradient_matching > 0 else None
+            if loss_grad is not None:
+                loss_g = loss_g + config.loss.gradient_matching * loss_grad
         opt_g.zero_grad(set_to_none=True)
         scaler.scale(loss_g).backward()
         scaler.step(opt_g)
@@ -339,6 +342,8 @@ def train(config: RunConfig, resume: bool = False) -> dict:
             }
             if loss_l1 is not None:
                 logged["G_l1"] = loss_l1.item()
+            if loss_grad is not None:
+                logged["G_grad"] = loss_grad.item()
             for key, value in logged.items():
                 writer.add_scalar(f"loss/{key}", value, done)
             writer.add_scalar("lr", config.optim.lr_at(step), done)

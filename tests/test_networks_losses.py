@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from model.config import DiscriminatorConfig, GeneratorConfig
-from model.losses import GANLoss, feature_matching, fill_holes, masked_l1, patch_weights
+from model.losses import GANLoss, feature_matching, fill_holes, gradient_matching, masked_l1, patch_weights
 from model.networks import GlobalGenerator, MultiscaleDiscriminator
 
 
@@ -160,3 +160,23 @@ def test_holes_carry_no_signal():
     weights = patch_weights(torch.zeros(1, 1, 32, 32), outputs)
     assert GANLoss("lsgan")(outputs, True, weights).item() == 0.0
     assert feature_matching(outputs, d(torch.randn(1, 4, 32, 32)), weights).item() == 0.0
+
+
+def test_gradient_matching_scores_shape_not_scale_and_skips_holes():
+    real = torch.rand(1, 1, 32, 32)
+    valid = torch.ones_like(real)
+    # A constant offset in log depth is one wrong distance for the whole view: no cost.
+    assert gradient_matching(real + 0.3, real, valid).item() == pytest.approx(0.0, abs=1e-6)
+    # One step edge 1.0 high in the residual, at column 16: hand-computed per scale.
+    step = torch.zeros_like(real)
+    step[..., 16:] = 1.0
+    # Scale 2^k keeps every 2^k-th pixel: the edge is one of 32 / 2^k - 1 horizontal pairs
+    # per row, and no vertical pair differs.
+    expected = sum(1.0 / (32 // 2**k - 1) for k in range(4)) / 4
+    assert gradient_matching(real + step, real, valid).item() == pytest.approx(expected)
+    # Pairs that touch a hole are ignored, whatever the prediction does there.
+    holes = valid.clone()
+    holes[..., 16] = 0.0
+    spike = torch.zeros_like(real)
+    spike[..., 16] = 5.0
+    assert gradient_matching(real + spike, real, holes).item() == pytest.approx(0.0, abs=1e-6)
