@@ -175,7 +175,9 @@ def report(
     model: Annotated[Path, typer.Argument(help="the published version folder to report on", exists=True)],
     root: Annotated[Path, typer.Option(help="7-Scenes sequence folder", exists=True, file_okay=False)],
     unseen: Annotated[Path, typer.Option(help="CSV manifest of a scene never trained on", exists=True, dir_okay=False)],
-    compare: Annotated[list[str], typer.Option(help="LABEL=PATH: a checkpoint or version to score beside it")] = [],  # noqa: B006
+    compare: Annotated[
+        list[str], typer.Option(help="LABEL=PATH: a checkpoint, version or stored score (.json) to show beside it")
+    ] = [],  # noqa: B006
     train_frames: Annotated[str, typer.Option(help="frames the baselines are fitted on")] = "0-799",
     test_frames: Annotated[str, typer.Option(help="frames everything is scored on")] = "850-999",
     out: Annotated[Path, typer.Option(help="folder for quality.md and quality/")] = Path("docs"),
@@ -190,7 +192,9 @@ def report(
     for item in compare:
         name, sep, path = item.rpartition("=")
         if not sep or not name or not Path(path).exists():
-            raise typer.BadParameter(f"--compare {item!r}: expected LABEL=PATH to an existing checkpoint or version")
+            raise typer.BadParameter(
+                f"--compare {item!r}: expected LABEL=PATH to an existing checkpoint, version or stored score"
+            )
         pairs[name] = Path(path)
     inputs = ReportInputs(
         model, root, unseen, pairs, out, recipe=recipe, train_frames=train_frames, test_frames=test_frames

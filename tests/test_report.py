@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 
 import numpy as np
+import pytest
 from conftest import REPO, SEVEN_SCENES, TUM_FRAME, run_cli
 from PIL import Image
 
 from model.config import complete_config, load_config
 from model.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
 from model.render import render_points
-from model.report import ReportInputs, _selection_section, config_diff, published_checkpoint
+from model.report import ReportInputs, _selection_section, build_report, config_diff, published_checkpoint
 
 
 def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, trained_checkpoint, tmp_path):
@@ -73,6 +75,28 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
         assert Image.open(out / "quality" / name).size[0] > 100
     # Nothing with dataset pixels lands outside the ignored folder.
     assert {p.name for p in (out / "quality").glob("*.png")} == {"pc_rmse_curve.png"}
+
+    # The compared checkpoint's scores are stored, so a report without runs/ can still show its row.
+    stored = out / "quality" / "compared" / "eager-checkpoint.json"
+    record = json.loads(stored.read_text())
+    assert record["source"] == str(trained_checkpoint) and len(record["pc_rmse"]) == 2
+    again = tmp_path / "again"
+    inputs = ReportInputs(
+        registry / "tiny" / "0.1.0",
+        SEVEN_SCENES,
+        unseen,
+        {"stored": stored},
+        again,
+        train_frames="0-3",
+        test_frames="850-851",
+    )
+    text = build_report(inputs).read_text()
+    rows_again = json.loads((again / "quality" / "metrics.json").read_text())["rows"]
+    assert rows_again["stored"] == rows["eager checkpoint"]
+    assert f"stored score of `{trained_checkpoint}`" in text and "(same training config)" in text
+    # A score made on other frames is refused, not shown beside this split's rows.
+    with pytest.raises(ValueError, match="scored on"):
+        build_report(dataclasses.replace(inputs, test_frames="850-850"))
 
 
 def test_a_refit_without_validation_frames_publishes_its_last_checkpoint():

@@ -1,0 +1,66 @@
+"""Stored scores of compared runs, so a report outlives the checkpoints it compared.
+
+A run's checkpoints live in ``runs/``, which is never committed and does not survive
+a fresh clone, while the report's ablation compares a dozen of them. Each time
+``rgb2cloud report`` scores a checkpoint or a version, it writes a record here: the
+run's full training config, the metrics on the test split and on the unseen scene,
+and exactly what they were scored on. A later report takes the record in place of
+the checkpoint (``--compare LABEL=docs/quality/compared/NAME.json``) and refuses it
+when the frames, depth range or unseen manifest differ, so a stored row is always
+the row the checkpoint would give. To re-score it, rerun the recipe step that
+trained the checkpoint and pass the checkpoint instead.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from datetime import UTC, datetime
+from pathlib import Path
+
+from pydantic import BaseModel
+
+
+class ScoreRecord(BaseModel):
+    """One compared model's scores and the exact conditions they were measured under."""
+
+    source: str
+    config: dict
+    split: str
+    min_m: float
+    max_m: float
+    unseen: str
+    test: dict
+    unseen_metrics: dict
+    #: Per-image point-cloud RMSE on the test split, for the curve (None: not kept).
+    pc_rmse: list[float] | None = None
+    scored: str
+
+
+def is_record(path: Path) -> bool:
+    return path.suffix == ".json"
+
+
+def record_path(folder: Path, label: str) -> Path:
+    """A file name from the label: lower case, runs of other characters turned into one '-'."""
+    slug = re.sub(r"[^a-z0-9.]+", "-", label.lower()).strip("-")[:80]
+    return folder / f"{slug}.json"
+
+
+def write_record(path: Path, record: ScoreRecord) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(record.model_dump(), indent=2) + "\n")
+
+
+def read_record(path: Path, split: str, min_m: float, max_m: float, unseen: str) -> ScoreRecord:
+    """Load a record, refusing one scored under other conditions than this report's."""
+    record = ScoreRecord.model_validate_json(Path(path).read_text())
+    wanted = {"split": split, "min_m": min_m, "max_m": max_m, "unseen": unseen}
+    stored = {key: getattr(record, key) for key in wanted}
+    if stored != wanted:
+        raise ValueError(f"{path}: scored on {stored}, but this report scores on {wanted}; re-score its checkpoint")
+    return record
+
+
+def now() -> str:
+    return datetime.now(UTC).strftime("%Y-%m-%d")
