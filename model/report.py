@@ -154,6 +154,17 @@ def _scale_paragraph(result: dict) -> str:
     )
 
 
+def _curve_note(drawn: int, missing: int) -> str:
+    """Which models the curve draws: compared rows stored without per-image scores have no curve."""
+    note = f"It draws {drawn} model(s): the published one and each compared run whose per-image scores are kept."
+    if missing:
+        note += (
+            f" The other {missing} compared row(s) were stored before per-image scores were kept, so they appear "
+            "in the tables only."
+        )
+    return note
+
+
 def _fmt_targets(result: dict) -> str:
     won = beats(result, PAPER_TUM)
     better = [k for k in METRIC_NAMES if won[k]]
@@ -330,6 +341,8 @@ def build_report(inputs: ReportInputs) -> Path:
         f"{PAPER_NYU_PC_RMSE} m on NYU. The Figure-8-style curve (fraction of test images with RMSE below r):",
         "",
         "![point-cloud RMSE curve](quality/pc_rmse_curve.png)",
+        "",
+        _curve_note(len(curves), sum(name not in curves for name in inputs.compare)),
         "",
         "## Samples",
         "",

@@ -43,7 +43,7 @@ def is_record(path: Path) -> bool:
 
 def record_path(folder: Path, label: str) -> Path:
     """A file name from the label: lower case, runs of other characters turned into one '-'."""
-    slug = re.sub(r"[^a-z0-9.]+", "-", label.lower()).strip("-")[:80]
+    slug = re.sub(r"[^a-z0-9.]+", "-", label.lower()).strip("-")[:150]
     return folder / f"{slug}.json"
 
 

@@ -38,7 +38,7 @@ def plot_pc_curve(curves: dict[str, list[float]], path: Path, r_max: float = 1.0
     ax.set_xlim(0, r_max)
     ax.set_ylim(0, 1.01)
     ax.grid(alpha=0.3)
-    ax.legend(loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path)
+    # Below the axes, one entry per line: report labels are sentences, which squeeze the plot inside it.
+    ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.15), fontsize="small", frameon=False)
+    fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
