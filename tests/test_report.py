@@ -94,6 +94,7 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
     rows_again = json.loads((again / "quality" / "metrics.json").read_text())["rows"]
     assert rows_again["stored"] == rows["eager checkpoint"]
     assert f"stored score of `{trained_checkpoint}`" in text and "(same training config)" in text
+    assert "marked as stored scores" in text and "marked as stored scores" not in (out / "quality.md").read_text()
     assert "It draws 2 model(s)" in text  # the stored per-image scores still make a curve
     # A score made on other frames is refused, not shown beside this split's rows.
     with pytest.raises(ValueError, match="scored on"):
