@@ -48,6 +48,11 @@ class GeneratorConfig(_Strict):
         "(one per block; empty = all 1, the paper). Widens what one output pixel sees, for the "
         "room-scale cues that fix a view's absolute depth, with the same weights and compute",
     )
+    skips: bool = Field(
+        False,
+        description="beyond the paper: add each encoder stage's output to the decoder stage of the same "
+        "size (U-Net style, parameter-free), so fine structure need not pass through the 1/2^n bottleneck",
+    )
     flip_average: bool = Field(
         False,
         description="beyond the paper, inference only: also run the mirrored image and average the two "

@@ -4,8 +4,6 @@ Each network is one small class that reads top to bottom like the paper's
 description. Instance norm without affine parameters, as pix2pixHD uses.
 """
 
-from __future__ import annotations
-
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -61,6 +59,12 @@ class GlobalGenerator(nn.Module):
     trainer feeds frames already at the working scale (``at_working_scale``), so
     the losses and the discriminators work where the network does.
 
+    With ``skips`` each encoder stage's output (front-end, then every downsampling
+    but the last) is added to the decoder's output of the same size, U-Net style.
+    The sums need no weights, so the layers and their state-dict keys are the ones
+    a plain generator has; only the wiring differs. Without them every edge and
+    thin object must be rebuilt from the 1/2^n bottleneck by transposed convs.
+
     With ``flip_average`` the full-size path also predicts the left-right mirror
     and averages it back in (test-time augmentation): the same weights, a second
     pass. Whether it helps depends on the data, so measure it on validation frames
@@ -68,11 +72,19 @@ class GlobalGenerator(nn.Module):
     lives in the graph so that every exported file carries it.
     """
 
+    save_after: list[int]  # class-level, so TorchScript types them even when empty
+    add_after: list[int]
+
     def __init__(self, config: GeneratorConfig):
         super().__init__()
         self.config = config
         self.work_scale = config.work_scale  # plain values, so TorchScript can read them
         self.flip_average = config.flip_average
+        # Indices into self.model after which a skip is saved or added back (LIFO).
+        n, front_end, stage = config.n_downsample, 4, 3
+        decoder = front_end + stage * n + config.n_blocks
+        self.save_after = [front_end - 1 + stage * i for i in range(n)] if config.skips else []
+        self.add_after = [decoder - 1 + stage * (i + 1) for i in range(n)] if config.skips else []
         ngf = config.ngf
         layers: list[nn.Module] = [
             nn.ReflectionPad2d(3),
@@ -98,7 +110,7 @@ class GlobalGenerator(nn.Module):
 
     def forward(self, x: torch.Tensor, at_working_scale: bool = False) -> torch.Tensor:
         if at_working_scale:
-            return self.model(x)
+            return self._core(x)
         if self.flip_average:
             mirrored = torch.flip(self._full_size(torch.flip(x, [3])), [3])
             return 0.5 * (self._full_size(x) + mirrored)
@@ -107,9 +119,22 @@ class GlobalGenerator(nn.Module):
     def _full_size(self, x: torch.Tensor) -> torch.Tensor:
         k = self.work_scale
         if k == 1:
-            return self.model(x)
-        y = self.model(F.avg_pool2d(x, k))
+            return self._core(x)
+        y = self._core(F.avg_pool2d(x, k))
         return F.interpolate(y, scale_factor=float(k), mode="bilinear", align_corners=False)
+
+    def _core(self, x: torch.Tensor) -> torch.Tensor:
+        """The network at its working scale, with the skips when configured."""
+        if not self.save_after:
+            return self.model(x)
+        saved: list[torch.Tensor] = []
+        for i, layer in enumerate(self.model):
+            x = layer(x)
+            if i in self.save_after:
+                saved.append(x)
+            elif i in self.add_after:
+                x = x + saved.pop()
+        return x
 
 
 class NLayerDiscriminator(nn.Module):

@@ -55,6 +55,28 @@ def test_flip_average_is_the_mean_with_the_mirrored_prediction_at_inference_only
     assert torch.equal(averaged(core, at_working_scale=True), plain(core, at_working_scale=True))
 
 
+def test_skips_add_each_encoder_stage_to_the_decoder_stage_of_its_size_with_the_same_weights():
+    torch.manual_seed(0)
+    config = GeneratorConfig(ngf=4, n_downsample=2, n_blocks=1, work_scale=2)
+    plain = GlobalGenerator(config).eval()
+    skipped = GlobalGenerator(config.model_copy(update={"skips": True})).eval()
+    skipped.load_state_dict(plain.state_dict())  # no new weights: the keys are a plain generator's
+    x = torch.randn(1, 3, 16, 24)
+    # By hand: front-end (layers 0-3), two downsamplings (4-6, 7-9), one block (10),
+    # two upsamplings (11-13, 14-16), output (17-19).
+    layers = list(plain.model)
+    front = torch.nn.Sequential(*layers[:4])(x)
+    half = torch.nn.Sequential(*layers[4:7])(front)
+    bottleneck = torch.nn.Sequential(*layers[7:11])(half)
+    up_half = torch.nn.Sequential(*layers[11:14])(bottleneck) + half
+    up_full = torch.nn.Sequential(*layers[14:17])(up_half) + front
+    expected = torch.nn.Sequential(*layers[17:])(up_full)
+    torch.testing.assert_close(skipped(x, at_working_scale=True), expected)
+    assert not torch.allclose(expected, plain(x, at_working_scale=True))
+    assert skipped(x).shape == (1, 1, 16, 24)
+    torch.testing.assert_close(torch.jit.script(skipped)(x), skipped(x))  # the TorchScript export's path
+
+
 def test_generator_layout_follows_the_paper():
     g = GlobalGenerator(GeneratorConfig(ngf=4, n_downsample=2, n_blocks=3))
     layers = list(g.model)
