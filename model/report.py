@@ -29,7 +29,7 @@ from PIL import Image
 
 from model.baselines import fit_baselines, score_baselines
 from model.card import ModelCard, load_card
-from model.config import complete_config
+from model.config import GeneratorConfig, complete_config
 from model.data.frames import Frame
 from model.data.manifest import ManifestReader
 from model.data.sevenscenes import SevenScenesReader
@@ -233,6 +233,19 @@ def _selection_section(inputs: ReportInputs, configs: dict[str, dict]) -> list[s
     return [*lines, ""]
 
 
+def _generator_shape(g: GeneratorConfig) -> str:
+    """The card's generator in words, with every option beyond the paper that changes its output."""
+    parts = [f"{g.ngf} filters", f"{g.n_downsample} downsamplings", f"{g.n_blocks} residual blocks"]
+    if g.dilations and max(g.dilations) > 1:
+        parts[-1] += f" (first convolutions dilated {', '.join(map(str, g.dilations))})"
+    if g.skips:
+        parts.append("U-Net skips")
+    parts.append(f"working scale 1/{g.work_scale} of the input")
+    if g.flip_average:
+        parts.append("mirror-averaged at inference")
+    return ", ".join(parts)
+
+
 def _card_section(card: ModelCard, model_dir: Path) -> list[str]:
     size_mb = sum((model_dir / f).stat().st_size for f in card.files) / 1e6
     g = card.generator
@@ -240,8 +253,7 @@ def _card_section(card: ModelCard, model_dir: Path) -> list[str]:
     return [
         f"- **Model**: `{card.name}` {card.version}, `{model_dir}`; files {', '.join(card.files)}: "
         f"{size_mb:.1f} MB in all.",
-        f"- **Generator**: pix2pixHD global generator, {g.ngf} filters, {g.n_downsample} downsamplings, "
-        f"{g.n_blocks} residual blocks, working scale 1/{g.work_scale} of the input.",
+        f"- **Generator**: pix2pixHD global generator, {_generator_shape(g)}.",
         f"- **Trained on**: {data}. {card.training.steps} steps, {card.training.duration_s / 60:.0f} min of "
         f"training on {card.training.hardware}.",
         "- **Licence**: the weights were trained on Microsoft 7-Scenes, whose licence allows **non-commercial "

@@ -11,10 +11,17 @@ import pytest
 from conftest import REPO, SEVEN_SCENES, TUM_FRAME, run_cli
 from PIL import Image
 
-from model.config import complete_config, load_config
+from model.config import GeneratorConfig, complete_config, load_config
 from model.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
 from model.render import render_points
-from model.report import ReportInputs, _selection_section, build_report, config_diff, published_checkpoint
+from model.report import (
+    ReportInputs,
+    _generator_shape,
+    _selection_section,
+    build_report,
+    config_diff,
+    published_checkpoint,
+)
 
 
 def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, trained_checkpoint, tmp_path):
@@ -119,6 +126,17 @@ def test_the_selection_section_says_when_the_published_model_is_a_refit(tmp_path
     assert "| 0-7 | 850-851 | 2 |" in text and "refit on the train frames 0-7" in text
     # A published model chosen on its own validation frames gets no such sentence.
     assert "refit" not in "\n".join(_selection_section(inputs, {"chosen": chosen}))
+
+
+def test_the_generator_line_names_every_option_that_changes_the_output():
+    plain = GeneratorConfig(ngf=16, n_downsample=3, n_blocks=2, work_scale=2)
+    assert _generator_shape(plain) == "16 filters, 3 downsamplings, 2 residual blocks, working scale 1/2 of the input"
+    assert _generator_shape(plain.model_copy(update={"dilations": [1, 1]})) == _generator_shape(plain)
+    full = plain.model_copy(update={"dilations": [1, 4], "skips": True, "flip_average": True})
+    assert _generator_shape(full) == (
+        "16 filters, 3 downsamplings, 2 residual blocks (first convolutions dilated 1, 4), U-Net skips, "
+        "working scale 1/2 of the input, mirror-averaged at inference"
+    )
 
 
 def test_config_diff_names_changed_leaves():
