@@ -218,3 +218,13 @@ rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s
 # (0.910 against 0.911) and lost delta2 (0.984 against 0.987). So the test split half agrees with the
 # two folds, and the same recipe on two training sets moves test REL by 0.004 (step 9's fold A run
 # 0.106, fold B 0.110). Gains smaller than that need more than one run per arm to see.
+
+# 12. How much of that is the seed: 0.5.0's recipe on fold A again with train.seed=1, alone on
+#     2 threads (about 40 min). A measurement for the protocol, not a candidate: it is not test-scored.
+rgb2cloud train configs/7scenes-default.yaml -s train.threads=2 -s "$DILATED" -s "data.train=[$SELECT_TRAIN]" \
+    -s "$SELECT_VAL" -s train.seed=1 -s train.out_dir=runs/folda-dilated-seed1
+# Outcome (val/rel on 720-799 at steps 1000, 1200, 1400): 0.170, 0.223, 0.220, mean 0.204, against
+# seed 0's 0.227 (step 9). The seed alone moves a fold's score by 0.023, more than the 0.01 margin of
+# steps 9-11's rules and more than the skips lost by on fold A (0.011). So step 11's "not kept" holds by
+# its rule, but it is weak evidence either way. A rule that can separate changes of this size needs at
+# least two seeds per arm on each fold.
