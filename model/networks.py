@@ -80,11 +80,6 @@ class GlobalGenerator(nn.Module):
         self.config = config
         self.work_scale = config.work_scale  # plain values, so TorchScript can read them
         self.flip_average = config.flip_average
-        # Indices into self.model after which a skip is saved or added back (LIFO).
-        n, front_end, stage = config.n_downsample, 4, 3
-        decoder = front_end + stage * n + config.n_blocks
-        self.save_after = [front_end - 1 + stage * i for i in range(n)] if config.skips else []
-        self.add_after = [decoder - 1 + stage * (i + 1) for i in range(n)] if config.skips else []
         ngf = config.ngf
         layers: list[nn.Module] = [
             nn.ReflectionPad2d(3),
@@ -92,7 +87,11 @@ class GlobalGenerator(nn.Module):
             _norm(ngf),
             nn.ReLU(True),
         ]
+        # Where each skip leaves (an encoder output at full, 1/2, ... size) and, LIFO, comes back in.
+        encoder_outputs: list[int] = []
+        decoder_outputs: list[int] = []
         for i in range(config.n_downsample):
+            encoder_outputs.append(len(layers) - 1)
             c = ngf * 2**i
             layers += [nn.Conv2d(c, c * 2, 3, stride=2, padding=1), _norm(c * 2), nn.ReLU(True)]
         c = ngf * 2**config.n_downsample
@@ -105,8 +104,11 @@ class GlobalGenerator(nn.Module):
                 _norm(c // 2),
                 nn.ReLU(True),
             ]
+            decoder_outputs.append(len(layers) - 1)
         layers += [nn.ReflectionPad2d(3), nn.Conv2d(ngf, config.output_nc, 7), nn.Tanh()]
         self.model = nn.Sequential(*layers)
+        self.save_after = encoder_outputs if config.skips else []
+        self.add_after = decoder_outputs if config.skips else []
 
     def forward(self, x: torch.Tensor, at_working_scale: bool = False) -> torch.Tensor:
         if at_working_scale:
