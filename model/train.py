@@ -14,6 +14,7 @@ so a resumed run repeats an uninterrupted one bit for bit on the same device.
 from __future__ import annotations
 
 import copy
+import gc
 import hashlib
 import json
 import os
@@ -148,6 +149,28 @@ def _check_resumable(saved: dict, config: RunConfig) -> None:
 def train(config: RunConfig, resume: bool = False) -> dict:
     """Run (or continue) training; returns the run summary that is also written to disk."""
     ddp = setup_distributed("cuda" if config.train.device != "cpu" and torch.cuda.is_available() else "cpu")
+    try:
+        return _train(config, resume, ddp)
+    finally:
+        if ddp.world_size > 1:
+            leave_process_group()
+
+
+def leave_process_group() -> None:
+    """Tear the process group down in a set order, while the interpreter is still whole.
+
+    In CI, rank 0 of a finished CPU run once aborted at exit ("terminate called without
+    an active exception", SIGABRT) after its last step. The DDP wrappers' reducers
+    hold the group and its gloo threads; if they outlive ``destroy_process_group`` they
+    are freed during interpreter shutdown in no set order. So every rank first meets the
+    others (the barrier at the end of ``_train``), then the wrappers, gone with
+    ``_train``'s frame or held in a cycle, are collected, and only then is the group destroyed.
+    """
+    gc.collect()
+    dist.destroy_process_group()
+
+
+def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
     device = pick_device(config.train.device, ddp.local_rank)
     if config.train.threads:
         torch.set_num_threads(config.train.threads)
@@ -374,5 +397,5 @@ def train(config: RunConfig, resume: bool = False) -> dict:
         writer.close()
         (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if ddp.world_size > 1:
-        dist.destroy_process_group()
+        dist.barrier()  # no rank leaves the group while another still writes or gathers
     return summary
