@@ -9,7 +9,7 @@ from typing import Any
 import torch
 
 from model.config import RunConfig
-from model.networks import GlobalGenerator
+from model.networks import GeneratorEnsemble, GlobalGenerator
 
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
@@ -42,3 +42,24 @@ def load_generator(path: Path, flip_average: bool | None = None) -> tuple[Global
     generator = GlobalGenerator(config.generator)
     generator.load_state_dict(state.get("generator_ema", state["generator"]))  # strict: a config mismatch fails loudly
     return generator.eval(), config, state
+
+
+def load_ensemble(
+    paths: list[Path], flip_average: bool | None = None
+) -> tuple[GlobalGenerator | GeneratorEnsemble, RunConfig, list[dict[str, Any]]]:
+    """One checkpoint's generator, or several averaged as one (``GeneratorEnsemble``).
+
+    The members must agree on everything that shapes their output (the generator and
+    the depth encoding); the returned config is the first member's, the states are all.
+    """
+    if not paths:
+        raise ValueError("no checkpoint given")
+    loaded = [load_generator(p, flip_average) for p in paths]
+    generators, configs, states = zip(*loaded, strict=True)
+    if len(loaded) == 1:
+        return generators[0], configs[0], list(states)
+    for path, config in zip(paths[1:], configs[1:], strict=True):
+        for section in ("generator", "depth"):
+            if getattr(config, section) != getattr(configs[0], section):
+                raise ValueError(f"{path}: its {section} config differs from {paths[0]}'s; cannot average them")
+    return GeneratorEnsemble(list(generators)).eval(), configs[0], list(states)

@@ -32,7 +32,13 @@ def train(
 
 @app.command()
 def evaluate(
-    model: Annotated[Path, typer.Argument(help="a checkpoint (.pt) or a published version folder", exists=True)],
+    model: Annotated[
+        list[Path],
+        typer.Argument(
+            help="a published version folder, or checkpoints (.pt): several run as one, the mean of their outputs",
+            exists=True,
+        ),
+    ],
     format: Annotated[str, typer.Option(help="7scenes | tum | nyu | csv")],
     root: Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)],
     frames: Annotated[str | None, typer.Option(help="7scenes frame ranges, e.g. 850-999")] = None,

@@ -15,7 +15,7 @@ import numpy as np
 from tqdm import tqdm
 
 from model.card import ONNX_FILE, load_card, verify_files
-from model.checkpoint import load_generator
+from model.checkpoint import load_ensemble
 from model.data.frames import Frame
 from model.data.transforms import resize_frame
 from model.metrics import METRIC_NAMES, MetricAccumulator, median_ratio, valid_mask
@@ -85,27 +85,44 @@ def evaluate_frames(
     return result, per_image, grid
 
 
-def load_predictor(path: Path, flip_average: bool | None = None) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
-    """A depth predictor and a label from a checkpoint (.pt) or a published version folder.
+def load_predictor(
+    paths: Sequence[Path], flip_average: bool | None = None
+) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
+    """A depth predictor and a label from checkpoints (.pt) or one published version folder.
 
     A version folder is checked against its card (sha256) and run the way the
     service runs it: ONNX Runtime, then the card's depth encoding. Its flip
     average is baked into the exported graph, so ``flip_average`` applies to
-    checkpoints only (None: as trained).
+    checkpoints only (None: as trained). Several checkpoints run as one
+    ``GeneratorEnsemble``, the mean of their outputs.
     """
-    path = Path(path)
-    if path.is_dir():
+    paths = [Path(p) for p in paths]
+    if any(p.is_dir() for p in paths):
+        if len(paths) > 1:
+            raise ValueError(f"{paths}: a published version folder is scored alone, not averaged with others")
+        path = paths[0]
         if flip_average is not None:
             raise ValueError(f"{path}: a published version runs as exported; flip averaging is set at export")
         card = load_card(path)
         verify_files(path, card)
         runner = OnnxGenerator(path / ONNX_FILE, card.input_multiple)
         return (lambda rgb: card.depth_encoding.decode(runner.predict_raw(rgb))), f"{card.name} {card.version} (ONNX)"
-    generator, config, state = load_generator(path, flip_average)
+    generator, config, states = load_ensemble(paths, flip_average)
     runner = TorchModuleGenerator(generator, config.generator.input_multiple)
     flip = ", flip-averaged" if config.generator.flip_average else ""
-    label = f"rgb2cloud ({path.name}, step {state['step']}{flip})"
+    if len(paths) == 1:
+        label = f"rgb2cloud ({paths[0].name}, step {states[0]['step']}{flip})"
+    else:
+        members = "; ".join(f"{_run_name(p)} step {s['step']}" for p, s in zip(paths, states, strict=True))
+        label = f"rgb2cloud (mean of {members}{flip})"
     return (lambda rgb: config.depth.decode(runner.predict_raw(rgb))), label
+
+
+def _run_name(checkpoint: Path) -> str:
+    """``runs/x/checkpoints/last.pt`` -> ``x/last.pt``: which run, and which of its checkpoints."""
+    parent = checkpoint.parent
+    run = parent.parent if parent.name == "checkpoints" else parent
+    return f"{run.name}/{checkpoint.name}"
 
 
 def _fmt(value: float | None) -> str:

@@ -139,6 +139,32 @@ class GlobalGenerator(nn.Module):
         return x
 
 
+class GeneratorEnsemble(nn.Module):
+    """Several generators of one config run as one: the mean of their tanh outputs.
+
+    Two GAN runs that differ only in their seed differ on new views by as much as most
+    changes to the recipe do (recipe step 12), so averaging runs removes error that no
+    single run can. The tanh output encodes log depth, so this is the geometric mean of
+    the members' depths. The interface is ``GlobalGenerator``'s inference one, so the
+    runners, the exporters and the service take either.
+    """
+
+    def __init__(self, members: list[GlobalGenerator]):
+        super().__init__()
+        if len(members) < 2:
+            raise ValueError("an ensemble needs at least two generators")
+        if any(m.config != members[0].config for m in members[1:]):
+            raise ValueError("an ensemble's generators must share one config")
+        self.config = members[0].config
+        self.members = nn.ModuleList(members)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        outputs: list[torch.Tensor] = []
+        for member in self.members:
+            outputs.append(member(x))
+        return torch.stack(outputs).mean(0)
+
+
 class NLayerDiscriminator(nn.Module):
     """PatchGAN with 4x4 kernels and LeakyReLU 0.2; returns every layer's output.
 

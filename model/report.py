@@ -125,7 +125,7 @@ def _compared(
     split = f"{inputs.root.name} {inputs.test_frames}"
     if is_record(path):
         return read_record(path, split, inputs.min_m, inputs.max_m, str(inputs.unseen))
-    predict, _ = load_predictor(path)
+    predict, _ = load_predictor([path])
     result, images, _ = _score(predict, test, inputs)
     record = ScoreRecord(
         source=str(path),
@@ -270,7 +270,7 @@ def build_report(inputs: ReportInputs) -> Path:
     run = card.training.config["train"]["out_dir"]  # the run folder its checkpoint came from
     flip = " --flip-average" if card.generator.flip_average else ""  # how it was evaluated and exported
     checkpoint = published_checkpoint(card.training.config)
-    predict, label = load_predictor(inputs.model)
+    predict, label = load_predictor([inputs.model])
     test = SevenScenesReader(inputs.root, inputs.test_frames)
     split = f"{inputs.root.name} {inputs.test_frames}"
 

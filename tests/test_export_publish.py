@@ -10,7 +10,8 @@ from datetime import UTC, datetime
 import numpy as np
 import onnx
 import pytest
-from conftest import REPO, TUM_FRAME, evaluate_cli, export_args, run_cli
+import torch
+from conftest import REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, export_args, run_cli
 from PIL import Image
 
 from model.card import (
@@ -27,7 +28,7 @@ from model.card import (
     publish,
     verify_files,
 )
-from model.checkpoint import load_generator
+from model.checkpoint import load_ensemble, load_generator
 from model.codec import INPUT_ENCODING, DepthEncoding
 from model.config import GeneratorConfig
 from model.export import check_parity, export_onnx, export_torchscript, parity_sizes
@@ -53,6 +54,39 @@ def test_evaluate_prints_the_paper_table_and_writes_reports(evaluated):
         assert (out / name).stat().st_size > 0
     with Image.open(out / "samples.png") as im:
         assert im.size == (3 * 640, 2 * 480)  # RGB | predicted | truth, full resolution
+
+
+def test_several_checkpoints_score_as_one_ensemble(trained_checkpoint, evaluated, tmp_path):
+    """Two runs' checkpoints evaluate as the mean of their outputs; mismatched runs are refused."""
+    state = torch.load(trained_checkpoint, weights_only=True)
+    for key, value in state["generator"].items():
+        if value.is_floating_point():
+            state["generator"][key] = value * 0.9  # another run's weights, same config
+    other = tmp_path / "other" / "checkpoints" / "last.pt"
+    other.parent.mkdir(parents=True)
+    torch.save(state, other)
+    ensemble, _, states = load_ensemble([trained_checkpoint, other])
+    members = [load_generator(p)[0] for p in (trained_checkpoint, other)]
+    x = torch.randn(1, 3, 32, 48)
+    with torch.inference_mode():
+        torch.testing.assert_close(ensemble(x), (members[0](x) + members[1](x)) / 2)
+    assert [s["step"] for s in states] == [6, 6]
+
+    args = ["--format", "7scenes", "--root", str(SEVEN_SCENES), "--frames", "850-852", "--out", str(tmp_path / "e")]
+    stdout = run_cli("evaluate", str(trained_checkpoint), str(other), *args).stdout
+    assert "rgb2cloud (mean of run/last.pt step 6; other/last.pt step 6)" in stdout
+    single = json.loads((evaluated[0] / "metrics.json").read_text())["metrics"]
+    assert json.loads((tmp_path / "e" / "metrics.json").read_text())["metrics"]["rel"] != single["rel"]
+
+    state["config"]["generator"]["work_scale"] = 1  # the same weights, run another way
+    torch.save(state, other)
+    result = subprocess.run(
+        [sys.executable, "-m", "model", "evaluate", str(trained_checkpoint), str(other), *args],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+    )
+    assert result.returncode == 1 and "generator config differs" in result.stderr
 
 
 def test_parity_at_two_sizes_one_off_grid(trained_checkpoint, tmp_path):

@@ -9,7 +9,7 @@ import torch
 
 from model.config import DiscriminatorConfig, GeneratorConfig
 from model.losses import GANLoss, feature_matching, fill_holes, gradient_matching, masked_l1, patch_weights
-from model.networks import GlobalGenerator, MultiscaleDiscriminator
+from model.networks import GeneratorEnsemble, GlobalGenerator, MultiscaleDiscriminator
 
 
 def test_paper_defaults():
@@ -75,6 +75,22 @@ def test_skips_add_each_encoder_stage_to_the_decoder_stage_of_its_size_with_the_
     assert not torch.allclose(expected, plain(x, at_working_scale=True))
     assert skipped(x).shape == (1, 1, 16, 24)
     torch.testing.assert_close(torch.jit.script(skipped)(x), skipped(x))  # the TorchScript export's path
+
+
+def test_an_ensemble_outputs_the_mean_of_its_members_also_under_torchscript():
+    config = GeneratorConfig(ngf=4, n_downsample=2, n_blocks=1, work_scale=2, flip_average=True)
+    torch.manual_seed(0)
+    members = [GlobalGenerator(config).eval() for _ in range(3)]
+    ensemble = GeneratorEnsemble(members).eval()
+    x = torch.randn(2, 3, 16, 24)
+    expected = (members[0](x) + members[1](x) + members[2](x)) / 3
+    torch.testing.assert_close(ensemble(x), expected)
+    assert not torch.allclose(expected, members[0](x))
+    torch.testing.assert_close(torch.jit.script(ensemble)(x), expected)
+    with pytest.raises(ValueError, match="share one config"):
+        GeneratorEnsemble([members[0], GlobalGenerator(config.model_copy(update={"flip_average": False}))])
+    with pytest.raises(ValueError, match="at least two"):
+        GeneratorEnsemble(members[:1])
 
 
 def test_generator_layout_follows_the_paper():
