@@ -142,11 +142,11 @@ class GlobalGenerator(nn.Module):
 class GeneratorEnsemble(nn.Module):
     """Several generators of one config run as one: the mean of their tanh outputs.
 
-    Two GAN runs that differ only in their seed differ on new views by as much as most
-    changes to the recipe do (recipe step 12), so averaging runs removes error that no
-    single run can. The tanh output encodes log depth, so this is the geometric mean of
-    the members' depths. The interface is ``GlobalGenerator``'s inference one, so the
-    runners, the exporters and the service take either.
+    It lets ``rgb2cloud evaluate`` score runs that differ only in their seed as one
+    model, to measure how much of a run's error averaging cancels (recipe step 13: on
+    7-Scenes, little). The tanh output encodes log depth, so this is the geometric mean
+    of the members' depths. Its ``forward(x)`` is ``GlobalGenerator``'s inference call,
+    so ``TorchModuleGenerator`` runs either.
     """
 
     def __init__(self, members: list[GlobalGenerator]):
