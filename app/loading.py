@@ -62,7 +62,8 @@ def resolve(settings: Settings) -> Path:
     return settings.registry / name / version
 
 
-def _weight_shapes(path: Path, backend: str) -> list[tuple[int, ...]]:
+def file_weight_shapes(path: Path, backend: str) -> list[tuple[int, ...]]:
+    """The shape of every 4-D weight (convolutions, 1x1 ones included) stored in an exported file."""
     if backend == "onnx":
         import onnx
 
@@ -77,7 +78,7 @@ def _weight_shapes(path: Path, backend: str) -> list[tuple[int, ...]]:
 def check_weights(card: ModelCard, path: Path, backend: str) -> None:
     """The card's generator config must describe exactly the convolutions in the file."""
     expected = Counter(card.generator.weight_shapes())
-    actual = Counter(_weight_shapes(path, backend))
+    actual = Counter(file_weight_shapes(path, backend))
     if expected != actual:
         missing, extra = expected - actual, actual - expected
         raise ModelLoadError(

@@ -53,6 +53,12 @@ class GeneratorConfig(_Strict):
         description="beyond the paper: add each encoder stage's output to the decoder stage of the same "
         "size (U-Net style, parameter-free), so fine structure need not pass through the 1/2^n bottleneck",
     )
+    global_offset: bool = Field(
+        False,
+        description="beyond the paper: a per-image log-depth offset, pooled from the whole bottleneck and "
+        "added before the output's tanh. Instance norm strips each image's feature means at every layer, "
+        "so without it a view's absolute distance must be coded in the features' spatial patterns",
+    )
     flip_average: bool = Field(
         False,
         description="beyond the paper, inference only: also run the mirrored image and average the two "
@@ -94,6 +100,9 @@ class GeneratorConfig(_Strict):
             for i in range(self.n_downsample)
         ]
         shapes.append((self.output_nc, ngf, 7, 7))
+        if self.global_offset:
+            c = ngf * 2**self.n_downsample  # the bottleneck's channels
+            shapes += [(c // 2, c, 1, 1), (self.output_nc, c // 2, 1, 1)]
         return shapes
 
 

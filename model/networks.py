@@ -46,6 +46,28 @@ class ResnetBlock(nn.Module):
         return x + self.block(x)
 
 
+class GlobalOffset(nn.Module):
+    """One log-depth offset per image, from the whole bottleneck map.
+
+    A 1x1 convolution and ReLU score every bottleneck cell, their mean over the map
+    describes the view, and a second 1x1 convolution turns that into an offset per
+    output channel. Instance norm removes each image's per-channel means at every
+    layer of the generator, so a plain generator can set a view's absolute distance
+    only through the spatial shape of its features; this path sets it directly.
+    The last convolution starts at zero, so training starts from the plain network.
+    """
+
+    def __init__(self, channels: int, output_nc: int):
+        super().__init__()
+        self.embed = nn.Conv2d(channels, channels // 2, 1)
+        self.out = nn.Conv2d(channels // 2, output_nc, 1)
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.out(F.relu(self.embed(x)).mean((2, 3), keepdim=True))
+
+
 class GlobalGenerator(nn.Module):
     """7x7 front-end, n_downsample stride-2 convs, n_blocks residual blocks
     (optionally dilated), n_downsample transposed convs, 7x7 output conv, tanh.
@@ -64,6 +86,9 @@ class GlobalGenerator(nn.Module):
     The sums need no weights, so the layers and their state-dict keys are the ones
     a plain generator has; only the wiring differs. Without them every edge and
     thin object must be rebuilt from the 1/2^n bottleneck by transposed convs.
+
+    With ``global_offset`` a ``GlobalOffset`` reads the bottleneck after the residual
+    blocks and its per-image offset is added to the output just before the tanh.
 
     With ``flip_average`` the full-size path also predicts the left-right mirror
     and averages it back in (test-time augmentation): the same weights, a second
@@ -97,6 +122,7 @@ class GlobalGenerator(nn.Module):
         c = ngf * 2**config.n_downsample
         dilations = config.dilations or [1] * config.n_blocks
         layers += [ResnetBlock(c, config.dropout, d) for d in dilations]
+        bottleneck, bottleneck_channels = len(layers) - 1, c
         for i in range(config.n_downsample):
             c = ngf * 2 ** (config.n_downsample - i)
             layers += [
@@ -109,6 +135,11 @@ class GlobalGenerator(nn.Module):
         self.model = nn.Sequential(*layers)
         self.save_after = encoder_outputs if config.skips else []
         self.add_after = decoder_outputs if config.skips else []
+        # Registered after ``model``, so a plain generator's state-dict keys are unchanged.
+        heads = [GlobalOffset(bottleneck_channels, config.output_nc)] if config.global_offset else []
+        self.global_offset = nn.ModuleList(heads)
+        self.offset_from = bottleneck if config.global_offset else -1
+        self.offset_into = len(layers) - 1  # the tanh
 
     def forward(self, x: torch.Tensor, at_working_scale: bool = False) -> torch.Tensor:
         if at_working_scale:
@@ -126,12 +157,18 @@ class GlobalGenerator(nn.Module):
         return F.interpolate(y, scale_factor=float(k), mode="bilinear", align_corners=False)
 
     def _core(self, x: torch.Tensor) -> torch.Tensor:
-        """The network at its working scale, with the skips when configured."""
-        if not self.save_after:
+        """The network at its working scale, with the skips and the global offset when configured."""
+        if not self.save_after and self.offset_from < 0:
             return self.model(x)
         saved: list[torch.Tensor] = []
+        offset = torch.zeros_like(x[:, :1, :1, :1])
         for i, layer in enumerate(self.model):
+            if i == self.offset_into:
+                x = x + offset
             x = layer(x)
+            if i == self.offset_from:
+                for head in self.global_offset:
+                    offset = head(x)
             if i in self.save_after:
                 saved.append(x)
             elif i in self.add_after:

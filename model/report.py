@@ -240,6 +240,8 @@ def _generator_shape(g: GeneratorConfig) -> str:
         parts[-1] += f" (first convolutions dilated {', '.join(map(str, g.dilations))})"
     if g.skips:
         parts.append("U-Net skips")
+    if g.global_offset:
+        parts.append("a per-image depth offset pooled from the bottleneck")
     parts.append(f"working scale 1/{g.work_scale} of the input")
     if g.flip_average:
         parts.append("mirror-averaged at inference")

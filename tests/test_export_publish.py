@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from collections import Counter
 from datetime import UTC, datetime
 
 import numpy as np
@@ -14,6 +15,7 @@ import torch
 from conftest import REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, export_args, run_cli
 from PIL import Image
 
+from app.loading import file_weight_shapes
 from model.card import (
     ONNX_FILE,
     TORCHSCRIPT_FILE,
@@ -32,6 +34,7 @@ from model.checkpoint import load_ensemble, load_generator
 from model.codec import INPUT_ENCODING, DepthEncoding
 from model.config import GeneratorConfig
 from model.export import check_parity, export_onnx, export_torchscript, parity_sizes
+from model.networks import GlobalGenerator
 from model.report import config_diff, training_config
 from model.runtime import OnnxGenerator
 
@@ -102,6 +105,20 @@ def test_parity_at_two_sizes_one_off_grid(trained_checkpoint, tmp_path):
     assert any(h % 4 or w % 4 for h, w in sizes)
     runner = OnnxGenerator(tmp_path / ONNX_FILE, config.generator.input_multiple)
     assert runner.predict_raw(image[: 481 - 4, : 641 - 6]).shape == (477, 635)
+
+
+def test_a_global_offset_generator_exports_with_parity_and_passes_the_services_weight_check(tmp_path):
+    config = GeneratorConfig(ngf=8, n_downsample=2, n_blocks=2, work_scale=2, dilations=[1, 2], global_offset=True)
+    torch.manual_seed(0)
+    generator = GlobalGenerator(config).eval()
+    with torch.no_grad():  # a trained head: non-zero, so the exported graphs must carry its path
+        torch.nn.init.normal_(generator.global_offset[0].out.weight, std=0.5)
+    export_onnx(generator, tmp_path / ONNX_FILE)
+    export_torchscript(generator, tmp_path / TORCHSCRIPT_FILE)
+    image = np.asarray(Image.open(TUM_FRAME / "TUM_color.png").convert("RGB"))
+    assert max(check_parity(generator, tmp_path, image).values()) <= 1e-4
+    for backend, file in (("onnx", ONNX_FILE), ("torchscript", TORCHSCRIPT_FILE)):
+        assert Counter(file_weight_shapes(tmp_path / file, backend)) == Counter(config.weight_shapes())
 
 
 def test_a_flip_averaged_export_is_mirror_equivariant_and_says_so(trained_checkpoint, evaluated, tmp_path):

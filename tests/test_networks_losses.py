@@ -77,6 +77,33 @@ def test_skips_add_each_encoder_stage_to_the_decoder_stage_of_its_size_with_the_
     torch.testing.assert_close(torch.jit.script(skipped)(x), skipped(x))  # the TorchScript export's path
 
 
+def test_global_offset_starts_as_the_plain_network_and_then_shifts_each_image_by_one_value():
+    torch.manual_seed(0)
+    config = GeneratorConfig(ngf=4, n_downsample=2, n_blocks=2, work_scale=2, dilations=[1, 2])
+    plain = GlobalGenerator(config).eval()
+    offset = GlobalGenerator(config.model_copy(update={"global_offset": True})).eval()
+    missing, unexpected = offset.load_state_dict(plain.state_dict(), strict=False)
+    assert not unexpected and all(k.startswith("global_offset.") for k in missing)  # old keys unchanged
+    x = torch.randn(2, 3, 32, 48)
+    torch.testing.assert_close(offset(x), plain(x))  # the head's last convolution starts at zero
+    with torch.no_grad():
+        offset.global_offset[0].out.bias.fill_(0.25)
+        raw_plain = torch.atanh(plain(x, at_working_scale=True).clamp(-0.999, 0.999))
+        raw_offset = torch.atanh(offset(x, at_working_scale=True).clamp(-0.999, 0.999))
+    torch.testing.assert_close(raw_offset - raw_plain, torch.full_like(raw_plain, 0.25), atol=2e-3, rtol=0)
+    # With a non-zero head the offset depends on the image: two images get two values.
+    with torch.no_grad():
+        torch.nn.init.normal_(offset.global_offset[0].out.weight)
+        shift = torch.atanh(offset(x, at_working_scale=True).clamp(-0.999, 0.999)) - raw_plain
+    per_image = shift.flatten(1)
+    assert torch.allclose(per_image, per_image[:, :1], atol=2e-3)
+    assert not torch.isclose(per_image[0, 0], per_image[1, 0])
+    convs = (torch.nn.Conv2d, torch.nn.ConvTranspose2d)
+    actual = [tuple(m.weight.shape) for m in offset.modules() if isinstance(m, convs)]
+    assert actual == offset.config.weight_shapes()
+    torch.testing.assert_close(torch.jit.script(offset)(x), offset(x))  # the TorchScript export's path
+
+
 def test_an_ensemble_outputs_the_mean_of_its_members_also_under_torchscript():
     config = GeneratorConfig(ngf=4, n_downsample=2, n_blocks=1, work_scale=2, flip_average=True)
     torch.manual_seed(0)

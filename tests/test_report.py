@@ -132,10 +132,11 @@ def test_the_generator_line_names_every_option_that_changes_the_output():
     plain = GeneratorConfig(ngf=16, n_downsample=3, n_blocks=2, work_scale=2)
     assert _generator_shape(plain) == "16 filters, 3 downsamplings, 2 residual blocks, working scale 1/2 of the input"
     assert _generator_shape(plain.model_copy(update={"dilations": [1, 1]})) == _generator_shape(plain)
-    full = plain.model_copy(update={"dilations": [1, 4], "skips": True, "flip_average": True})
+    full = plain.model_copy(update={"dilations": [1, 4], "skips": True, "global_offset": True, "flip_average": True})
     assert _generator_shape(full) == (
         "16 filters, 3 downsamplings, 2 residual blocks (first convolutions dilated 1, 4), U-Net skips, "
-        "working scale 1/2 of the input, mirror-averaged at inference"
+        "a per-image depth offset pooled from the bottleneck, working scale 1/2 of the input, "
+        "mirror-averaged at inference"
     )
 
 
