@@ -165,7 +165,7 @@ class GlobalGenerator(nn.Module):
         saved: list[torch.Tensor] = []
         offset = torch.zeros_like(x[:, :1, :1, :1])
         for i, layer in enumerate(self.model):
-            if i == self.offset_into:
+            if i == self.offset_into and self.offset_from >= 0:
                 x = x + offset
             x = layer(x)
             if i == self.offset_from:
