@@ -271,13 +271,12 @@ rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s
 #   and each checkpoint alone the same way. The test split scored the seed-1 refit once afterwards
 #   (docs/quality.md, "0.5.0's recipe with seed 1").
 
-# 14. Where the error on new views is, per pixel, on each fold's validation frames (the last checkpoints
-#     of step 13's runs; an ad-hoc count, not a figure of record): on fold A, 0.5.0's recipe reaches
-#     delta1 0.66, and the best single scale per image would lift it to 0.92, so most of its error is
-#     one wrong distance per view (step 9 found the same: median ratio 0.84); on fold B (delta1 0.965),
-#     61% of the failing pixels lie within 4 px of a depth edge or hole. The generator normalises every
-#     layer per image and per channel (instance norm, as pix2pixHD), which removes each image's feature
-#     means, so a view's absolute distance can only be coded in the spatial shape of its features.
+# 14. On fold A most of the error on new views is one wrong distance per view: step 9's run sees every
+#     view too far (ground-truth / predicted median 0.837 +- 0.039), and rescaling each prediction by that
+#     one number cuts its REL from 0.217 to 0.099 (`rgb2cloud evaluate ... --median-scaled`, step 9).
+#     The generator normalises every layer per image and per channel (instance norm, as pix2pixHD),
+#     which removes each image's feature means, so a view's absolute distance can only be coded in the
+#     spatial shape of its features.
 #     generator.global_offset=true adds one path that sets it directly: a 1x1 convolution and ReLU over
 #     the bottleneck after the residual blocks, their mean over the map, and a 1x1 convolution to one
 #     log-depth offset per image, added before the output's tanh (8,300 weights; it starts at zero, so
