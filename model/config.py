@@ -188,6 +188,12 @@ class TransformConfig(_Strict):
         le=30,
         description="largest virtual camera turn about each axis (yaw, pitch, roll), in degrees; 0 = off",
     )
+    zoom_depth: bool = Field(
+        False,
+        description="beyond the paper (Eigen et al. 2014's scale augmentation): a frame enlarged z times beyond "
+        "the scale that just fills the crop is shown as if seen from z times closer, its depth divided by z; "
+        "off, a zoom keeps depth, as a longer lens would",
+    )
 
 
 class DataConfig(_Strict):

@@ -145,3 +145,27 @@ def test_rgb_to_input_range_and_layout():
     x = rgb_to_input(np.array([[[0, 255, 127]]], dtype=np.uint8))
     assert x.shape == (1, 3, 1, 1) and x.dtype == np.float32
     np.testing.assert_allclose(x.ravel(), [-1.0, 1.0, 127 / 127.5 - 1], rtol=1e-6)
+
+
+def test_zoom_depth_shows_a_zoomed_frame_as_seen_from_closer():
+    """Enlarged z times beyond the crop-filling scale, a facing plane at 2 m comes to 2 / z m,
+    and its back-projected x, y stay where they were; off, the zoom keeps depth (a longer lens)."""
+    h, w = 96, 128
+    k = Intrinsics(110.0, 112.0, 63.5, 47.5, w, h)
+    frame = Frame(np.full((h, w, 3), 90, np.uint8), np.full((h, w), 2.0, np.float32), k, "wall")
+    off = TransformConfig(size=(48, 64), scale=(0.75, 0.75), flip=False, brightness=0, contrast=0, saturation=0)
+    on = off.model_copy(update={"zoom_depth": True})
+    p_off, p_on = sample_params(np.random.default_rng(5), off, h, w), sample_params(np.random.default_rng(5), on, h, w)
+    assert p_off.closer == 1.0 and p_on.closer == pytest.approx(1.5)  # 0.75 against the 0.5 that fills the crop
+    assert (p_on.crop, p_on.flip) == (p_off.crop, p_off.flip)  # no extra random draw
+    np.testing.assert_allclose(apply_params(frame, p_off).depth, 2.0)
+    out = apply_params(frame, p_on)
+    np.testing.assert_allclose(out.depth, 2.0 / 1.5, rtol=1e-6)
+    top, left = p_on.crop[:2]
+    k_out = out.intrinsics
+    for v2, u2 in [(0, 0), (47, 63), (20, 33)]:
+        u, v = (u2 + left + 0.5) / 0.75 - 0.5, (v2 + top + 0.5) / 0.75 - 0.5  # where the pixel came from
+        x_before, y_before = 2.0 * (u - k.cx) / k.fx, 2.0 * (v - k.cy) / k.fy
+        x_after = out.depth[v2, u2] * (u2 - k_out.cx) / k_out.fx
+        y_after = out.depth[v2, u2] * (v2 - k_out.cy) / k_out.fy
+        assert (x_after, y_after) == (pytest.approx(x_before), pytest.approx(y_before))

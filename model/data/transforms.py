@@ -6,6 +6,12 @@ depth never drift apart and the intrinsics stay true to the pixels:
 a resize scales fx, fy, cx, cy; a crop shifts cx, cy; a flip mirrors cx.
 Depth is resized with nearest neighbour so holes never blend into valid depth.
 
+With ``zoom_depth`` a zoom is not a longer lens but a step closer (Eigen et al.
+2014's scale augmentation): a frame enlarged z times beyond the scale that just
+fills the crop gets depth / z and focal lengths / z, so that the size an object
+appears at keeps meaning the same distance. It is exact for a plane facing the
+camera, and it widens the range of distances one recording shows.
+
 A virtual camera turn (``rotate_deg``) shows the room from viewing directions
 the recording never took. A pure rotation has no parallax, so it is exact: RGB and
 depth move by the homography K R^T K^-1, and each depth is re-measured along the
@@ -15,7 +21,7 @@ new optical axis. Pixels the old view never saw become black with no depth.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from PIL import Image
@@ -34,12 +40,14 @@ class TransformParams:
     contrast: float
     saturation: float
     rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)  # yaw, pitch, roll in degrees
+    closer: float = 1.0  # depth and focal lengths are divided by this (``zoom_depth``)
 
 
 def sample_params(rng: np.random.Generator, config: TransformConfig, height: int, width: int) -> TransformParams:
     crop_h, crop_w = config.size
     scale = rng.uniform(*config.scale)
-    scale = max(scale, crop_h / height, crop_w / width)  # never smaller than the crop
+    fills_crop = max(crop_h / height, crop_w / width)
+    scale = max(scale, fills_crop)  # never smaller than the crop
     new_h, new_w = max(crop_h, math.ceil(height * scale)), max(crop_w, math.ceil(width * scale))
     top = int(rng.integers(0, new_h - crop_h + 1))
     left = int(rng.integers(0, new_w - crop_w + 1))
@@ -59,6 +67,7 @@ def sample_params(rng: np.random.Generator, config: TransformConfig, height: int
         contrast=contrast,
         saturation=saturation,
         rotation=tuple(float(a) for a in turn),
+        closer=scale / fills_crop if config.zoom_depth else 1.0,
     )
 
 
@@ -133,5 +142,8 @@ def apply_params(frame: Frame, p: TransformParams) -> Frame:
     intrinsics = frame.intrinsics.cropped(left, top, w, h)
     if p.flip:
         rgb, depth, intrinsics = rgb[:, ::-1], depth[:, ::-1], intrinsics.flipped()
+    if p.closer != 1.0:
+        depth = depth / np.float32(p.closer)  # holes (0) stay holes
+        intrinsics = replace(intrinsics, fx=intrinsics.fx / p.closer, fy=intrinsics.fy / p.closer)
     rgb = jitter_colour(rgb, p.brightness, p.contrast, p.saturation)
     return Frame(np.ascontiguousarray(rgb), np.ascontiguousarray(depth), intrinsics, frame.name)
