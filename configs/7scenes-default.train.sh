@@ -364,3 +364,25 @@ rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s
 #       --median-scaled --out runs/foldb-zoom/eval-val
 #   rgb2cloud evaluate runs/refit-zoom/checkpoints/last.pt --format 7scenes --root $R --frames 850-999 \
 #       --median-scaled --out runs/refit-zoom/eval-test   (the test split's scale diagnostic, after the report)
+
+# 16. Step 15's zoom as a step closer moved the distance on new views the way it should, but too far:
+#     fold A's ground-truth / predicted median went from 0.837 to 1.071 and fold B's to 1.116, with
+#     enlargements 1-1.5 (mean 1.25). The ratio moved by about the mean enlargement, so an enlargement
+#     range of 1-1.2 (data.transform.scale 0.5-0.6, mean 1.1) should leave fold A's views seen about 8%
+#     too far instead of 16%, and fold B's within a few percent of right. The same switch, a milder range.
+#     Three runs, side by side at one thread each (about 105 min): the change on each fold, and the refit
+#     that would publish it, all seed 0.
+#     Decided before running them, with step 14's rule and baseline (REL of the last checkpoints on the
+#     fold's validation frames, full 640x480, `rgb2cloud evaluate` as in step 13; the recipe's two-seed
+#     mean is 0.2219 on fold A and 0.0782 on fold B, 0.1500 averaged): the change is kept only if (1) its
+#     REL averaged over the two folds is at most 0.1400, and (2) it is below the recipe's two-seed mean
+#     on each fold. If kept, the refit's last.pt is published as 0.6.0, provided it meets the 300 ms and
+#     20 MB limits. Either way the test split scores the refit once afterwards and the report shows it.
+ZOOM12='data.transform.scale=[0.5, 0.6]'
+rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s "$ZOOM12" -s "$CLOSER" \
+    -s "data.train=[$SELECT_TRAIN]" -s "$SELECT_VAL" -s train.out_dir=runs/folda-zoom12
+rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s "$ZOOM12" -s "$CLOSER" \
+    -s "data.train=$FOLD_B_TRAIN" -s "$FOLD_B_VAL" -s train.out_dir=runs/foldb-zoom12
+rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s "$ZOOM12" -s "$CLOSER" \
+    -s 'data.train=[{format: 7scenes, root: ../shared/data/7scenes-redkitchen, frames: "0-799"}]' \
+    -s 'data.val=[]' -s train.out_dir=runs/refit-zoom12
