@@ -386,3 +386,16 @@ rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s
 rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s "$ZOOM12" -s "$CLOSER" \
     -s 'data.train=[{format: 7scenes, root: ../shared/data/7scenes-redkitchen, frames: "0-799"}]' \
     -s 'data.val=[]' -s train.out_dir=runs/refit-zoom12
+# Outcome (`rgb2cloud evaluate` of the last checkpoints on each fold's validation frames, full 640x480,
+# with --median-scaled; the three runs took about 101 min side by side): the change is kept, and the
+# refit's last.pt is published as 0.6.0. Fold A (720-799): REL 0.1066 against the recipe's two-seed
+# mean 0.2219; fold B (220-299): 0.0765 against 0.0782. Averaged over the folds 0.0916 against 0.1500
+# (the rule asked for at most 0.1400), and below the baseline on each fold. The milder range took the
+# distance most of the way to right on both folds: the ground-truth / predicted median is 0.977 +- 0.037
+# on fold A (step 9's run 0.837, step 15's 1.071) and 1.038 +- 0.048 on fold B (step 15's 1.116).
+# Median-scaled REL: fold A 0.096, fold B 0.090.
+# The commands that scored them:
+#   rgb2cloud evaluate runs/folda-zoom12/checkpoints/last.pt --format 7scenes --root $R --frames 720-799 \
+#       --median-scaled --out runs/folda-zoom12/eval-val
+#   rgb2cloud evaluate runs/foldb-zoom12/checkpoints/last.pt --format 7scenes --root $R --frames 220-299 \
+#       --median-scaled --out runs/foldb-zoom12/eval-val
