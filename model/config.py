@@ -194,6 +194,12 @@ class TransformConfig(_Strict):
         "the scale that just fills the crop is shown as if seen from z times closer, its depth divided by z; "
         "off, a zoom keeps depth, as a longer lens would",
     )
+    zoom_out: bool = Field(
+        False,
+        description="a scale below the one that fills the crop shrinks the frame inside black, depth-less "
+        "borders instead of being raised to it; with zoom_depth that is a step back, so enlargements and "
+        "reductions can balance around no change",
+    )
 
 
 class DataConfig(_Strict):

@@ -171,3 +171,41 @@ def test_zoom_depth_shows_a_zoomed_frame_as_seen_from_closer():
         x_after = out.depth[v2, u2] * (u2 - k_out.cx) / k_out.fx
         y_after = out.depth[v2, u2] * (v2 - k_out.cy) / k_out.fy
         assert (x_after, y_after) == (pytest.approx(x_before), pytest.approx(y_before))
+
+
+def test_zoom_out_shows_a_shrunken_frame_inside_borders_as_seen_from_farther():
+    """Below the crop-filling scale, zoom_out pads with black, depth-less borders, and with zoom_depth
+    a facing plane at 2 m moves to 2 / z m for z < 1 with each pixel's x, y kept; off, the scale is
+    raised to fill the crop; on, scales that fill the crop draw exactly what they drew without it."""
+    h, w = 96, 128
+    k = Intrinsics(110.0, 112.0, 63.5, 47.5, w, h)
+    frame = Frame(np.full((h, w, 3), 90, np.uint8), np.full((h, w), 2.0, np.float32), k, "wall")
+    off = TransformConfig(size=(48, 64), scale=(0.4, 0.4), flip=False, brightness=0, contrast=0, saturation=0)
+    on = off.model_copy(update={"zoom_out": True, "zoom_depth": True})
+    rng_off, rng_on = np.random.default_rng(7), np.random.default_rng(7)
+    p_off, p_on = sample_params(rng_off, off, h, w), sample_params(rng_on, on, h, w)
+    assert p_off.resize == (48, 64) and p_off.crop == (0, 0, 48, 64)  # raised to 0.5, which fills the crop
+    wide = off.model_copy(update={"scale": (0.5, 0.7)})
+    rng_a, rng_b = np.random.default_rng(3), np.random.default_rng(3)
+    p_a, p_b = sample_params(rng_a, wide, h, w), sample_params(rng_b, wide.model_copy(update={"zoom_out": True}), h, w)
+    assert p_a == p_b and rng_a.bit_generator.state == rng_b.bit_generator.state
+    assert p_on.resize == (39, 52) and p_on.closer == pytest.approx(0.8)
+    top, left = p_on.crop[:2]
+    assert -9 <= top <= 0 and -12 <= left <= 0
+    out = apply_params(frame, p_on)
+    assert out.depth.shape == (48, 64) and out.rgb.shape == (48, 64, 3)
+    inside = out.depth > 0
+    assert inside.sum() == 39 * 52  # the whole shrunken frame is kept, and only it has depth
+    rows, cols = np.nonzero(inside)
+    assert (rows.min(), cols.min()) == (-top, -left)
+    assert (out.rgb[~inside] == 0).all() and (out.rgb[inside] == 90).all()
+    np.testing.assert_allclose(out.depth[inside], 2.0 / 0.8, rtol=1e-6)
+    k_out = out.intrinsics
+    assert (k_out.width, k_out.height) == (64, 48)
+    sx, sy = 52 / w, 39 / h  # the resize's own factors (the size is rounded up)
+    for v2, u2 in [(-top, -left), (-top + 38, -left + 51), (-top + 20, -left + 33)]:
+        u, v = (u2 + left + 0.5) / sx - 0.5, (v2 + top + 0.5) / sy - 0.5  # where the pixel came from
+        x_before, y_before = 2.0 * (u - k.cx) / k.fx, 2.0 * (v - k.cy) / k.fy
+        x_after = out.depth[v2, u2] * (u2 - k_out.cx) / k_out.fx
+        y_after = out.depth[v2, u2] * (v2 - k_out.cy) / k_out.fy
+        assert (x_after, y_after) == (pytest.approx(x_before), pytest.approx(y_before))

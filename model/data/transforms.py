@@ -14,7 +14,9 @@ camera, and it widens the range of distances one recording shows. On 7-Scenes it
 moves how far new views are judged, but as a shift towards "closer": enlargements of
 1-1.5 put both validation folds' views too close (recipe step 15), and 1-1.2 set the
 folds nearly right but the test views, already right without it, 7% too close (step
-16). So the default recipe leaves it off.
+16). So the default recipe leaves it off. ``zoom_out`` lets a scale below the crop-filling
+one shrink the frame inside black, depth-less borders, so that with ``zoom_depth`` steps
+back can balance the steps closer and a place's average distance stays what it is.
 
 A virtual camera turn (``rotate_deg``) shows the room from viewing directions
 the recording never took. A pure rotation has no parallax, so it is exact: RGB and
@@ -44,17 +46,20 @@ class TransformParams:
     contrast: float
     saturation: float
     rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)  # yaw, pitch, roll in degrees
-    closer: float = 1.0  # depth and focal lengths are divided by this (``zoom_depth``)
+    closer: float = 1.0  # depth and focal lengths are divided by this (``zoom_depth``); < 1 is a step back
 
 
 def sample_params(rng: np.random.Generator, config: TransformConfig, height: int, width: int) -> TransformParams:
     crop_h, crop_w = config.size
     scale = rng.uniform(*config.scale)
     fills_crop = max(crop_h / height, crop_w / width)
-    scale = max(scale, fills_crop)  # never smaller than the crop
-    new_h, new_w = max(crop_h, math.ceil(height * scale)), max(crop_w, math.ceil(width * scale))
-    top = int(rng.integers(0, new_h - crop_h + 1))
-    left = int(rng.integers(0, new_w - crop_w + 1))
+    if config.zoom_out:  # a frame smaller than the crop sits inside borders: negative offsets
+        new_h, new_w = math.ceil(height * scale), math.ceil(width * scale)
+    else:  # never smaller than the crop
+        scale = max(scale, fills_crop)
+        new_h, new_w = max(crop_h, math.ceil(height * scale)), max(crop_w, math.ceil(width * scale))
+    top = int(rng.integers(min(0, new_h - crop_h), max(0, new_h - crop_h) + 1))
+    left = int(rng.integers(min(0, new_w - crop_w), max(0, new_w - crop_w) + 1))
 
     def factor(amount: float) -> float:
         return float(rng.uniform(1 - amount, 1 + amount)) if amount else 1.0
@@ -127,6 +132,14 @@ def resize_frame(frame: Frame, height: int, width: int) -> Frame:
     return Frame(rgb, depth.astype(np.float32), frame.intrinsics.resized(width, height), frame.name)
 
 
+def pad_frame(frame: Frame, top: int, bottom: int, left: int, right: int) -> Frame:
+    """The frame inside black, depth-less borders; the camera's centre moves with the image."""
+    h, w = frame.depth.shape
+    rgb = np.pad(frame.rgb, ((top, bottom), (left, right), (0, 0)))
+    depth = np.pad(frame.depth, ((top, bottom), (left, right)))
+    return Frame(rgb, depth, frame.intrinsics.cropped(-left, -top, w + left + right, h + top + bottom), frame.name)
+
+
 def jitter_colour(rgb: np.ndarray, brightness: float, contrast: float, saturation: float) -> np.ndarray:
     x = rgb.astype(np.float32) * brightness
     grey = x @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
@@ -141,6 +154,11 @@ def apply_params(frame: Frame, p: TransformParams) -> Frame:
     if any(p.rotation):
         frame = rotate_frame(frame, rotation_matrix(*p.rotation))
     top, left, h, w = p.crop
+    frame_h, frame_w = frame.depth.shape
+    below, right = max(0, top + h - frame_h), max(0, left + w - frame_w)
+    if top < 0 or left < 0 or below or right:  # zoom_out: the crop reaches past the shrunken frame
+        frame = pad_frame(frame, max(0, -top), below, max(0, -left), right)
+        top, left = max(0, top), max(0, left)
     rgb = frame.rgb[top : top + h, left : left + w]
     depth = frame.depth[top : top + h, left : left + w]
     intrinsics = frame.intrinsics.cropped(left, top, w, h)
