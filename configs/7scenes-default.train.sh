@@ -291,7 +291,7 @@ rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s
 #     provided it meets the 300 ms and 20 MB limits. Either way the test split scores the refit once
 #     afterwards and the report shows it.
 OFFSET='generator.global_offset=true'
-# Steps 14-16 each run one change (the -s overrides after its name) on 0.5.0's recipe three times: on
+# From step 14 on, each step runs one change (the -s overrides after its name) on 0.5.0's recipe three times: on
 # fold A, on fold B, and refit on 0-799 with no validation frames, as runs/folda-NAME, runs/foldb-NAME
 # and runs/refit-NAME. They ran side by side at one thread each.
 try_change() {
