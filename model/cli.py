@@ -1,4 +1,5 @@
-"""The ``rgb2cloud`` command line: train, evaluate, export, baselines, novelty, report, client.
+"""The ``rgb2cloud`` command line: train, evaluate, export, baselines, novelty, report,
+record, client.
 
 Heavy imports happen inside each command, so ``rgb2cloud --help`` is instant and
 the torch-free parts of the project never pay for torch.
@@ -206,6 +207,36 @@ def report(
         model, root, unseen, pairs, out, recipe=recipe, train_frames=train_frames, test_frames=test_frames
     )
     typer.echo(f"wrote {build_report(inputs)}")
+
+
+@app.command()
+def record(
+    label: Annotated[str, typer.Argument(help="the report row's label; also names the record file")],
+    test: Annotated[Path, typer.Option(help="metrics.json of `rgb2cloud evaluate` on the test split", exists=True)],
+    unseen: Annotated[Path, typer.Option(help="metrics.json of `rgb2cloud evaluate` on the unseen frame", exists=True)],
+    unseen_manifest: Annotated[str, typer.Option(help="the --unseen manifest the report runs with")],
+    config: Annotated[Path, typer.Option(help="the YAML run config it was trained with", exists=True)],
+    set_: Annotated[list[str], typer.Option("--set", "-s", help="the training command's overrides")] = [],  # noqa: B006
+    source: Annotated[str, typer.Option(help="what was scored, where, and why it is not kept")] = "",
+    out: Annotated[Path, typer.Option(help="folder of stored records")] = Path("docs/quality/compared"),
+) -> None:
+    """Store a run scored elsewhere (say, on a leased GPU) as a record `rgb2cloud report --compare` reads."""
+    import json
+
+    from model.config import load_config
+    from model.scores import now, record_from_evaluations, record_path, write_record
+
+    stored = record_from_evaluations(
+        json.loads(test.read_text()),
+        json.loads(unseen.read_text()),
+        unseen_manifest=unseen_manifest,
+        config=load_config(config, set_).model_dump(mode="json"),
+        source=source or str(test.parent),
+        scored=f"scored by rgb2cloud evaluate, stored {now()} by rgb2cloud record",
+    )
+    path = record_path(out, label)
+    write_record(path, stored)
+    typer.echo(f"wrote {path}")
 
 
 @app.command()

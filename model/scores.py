@@ -9,6 +9,11 @@ the checkpoint (``--compare LABEL=docs/quality/compared/NAME.json``) and refuses
 when the frames, depth range or unseen manifest differ, so a stored row is always
 the row the checkpoint would give. To re-score it, rerun the recipe step that
 trained the checkpoint and pass the checkpoint instead.
+
+A run trained where its checkpoint cannot be kept (a leased GPU whose disk goes
+back with it, and a paper-size checkpoint far over what can be copied off) is
+scored there by ``rgb2cloud evaluate``, and ``rgb2cloud record`` turns those two
+metrics.json files into the same kind of record.
 """
 
 from __future__ import annotations
@@ -60,6 +65,42 @@ def read_record(path: Path, split: str, min_m: float, max_m: float, unseen: str)
     if stored != wanted:
         raise ValueError(f"{path}: scored on {stored}, but this report scores on {wanted}; re-score its checkpoint")
     return record
+
+
+#: Diagnostics ``rgb2cloud evaluate --median-scaled`` adds; the report's rows hold the paper's protocol alone.
+_DIAGNOSTICS = ("median_scaled", "median_ratio")
+
+
+def record_from_evaluations(
+    test: dict, unseen: dict, *, unseen_manifest: str, config: dict, source: str, scored: str
+) -> ScoreRecord:
+    """A record from two ``rgb2cloud evaluate`` outputs: the test split and the unseen manifest.
+
+    ``unseen_manifest`` is the manifest path the report is run with; the evaluation
+    may have read a copy of it elsewhere, which is why it is named here, not read
+    from the file. Both must share one depth range, as the report's rows do.
+    """
+    if test["depth_range_m"] != unseen["depth_range_m"]:
+        raise ValueError(f"test scored on {test['depth_range_m']} m, unseen on {unseen['depth_range_m']} m")
+    if unseen["metrics"]["images"] != 1:
+        raise ValueError(f"the unseen evaluation holds {unseen['metrics']['images']} images; the report's has one")
+    min_m, max_m = test["depth_range_m"]
+
+    def protocol(metrics: dict) -> dict:
+        return {key: value for key, value in metrics.items() if key not in _DIAGNOSTICS}
+
+    return ScoreRecord(
+        source=source,
+        config=config,
+        split=test["split"],
+        min_m=min_m,
+        max_m=max_m,
+        unseen=unseen_manifest,
+        test=protocol(test["metrics"]),
+        unseen_metrics=protocol(unseen["metrics"]),
+        pc_rmse=[row["pc_rmse"] for row in test["per_image"]],
+        scored=scored,
+    )
 
 
 def now() -> str:

@@ -5,17 +5,22 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
-from conftest import REPO, SEVEN_SCENES, TUM_FRAME, run_cli
+from conftest import REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, run_cli
 from PIL import Image
 
 from model.config import GeneratorConfig, complete_config, load_config
+from model.data.manifest import ManifestReader
+from model.data.sevenscenes import SevenScenesReader
 from model.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
 from model.render import render_points
 from model.report import (
     ReportInputs,
+    _compared,
     _generator_shape,
     _selection_section,
     build_report,
@@ -106,6 +111,61 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
     # A score made on other frames is refused, not shown beside this split's rows.
     with pytest.raises(ValueError, match="scored on"):
         build_report(dataclasses.replace(inputs, test_frames="850-850"))
+
+
+def test_a_run_scored_elsewhere_is_stored_as_the_record_the_report_would_make(trained_checkpoint, tmp_path):
+    """``rgb2cloud record`` from ``evaluate``'s two outputs equals the report scoring the checkpoint itself."""
+    unseen = tmp_path / "tum-fr3-office.csv"
+    unseen.write_text(
+        "rgb,depth,depth_scale,fx,fy,cx,cy\n"
+        f"{TUM_FRAME / 'TUM_color.png'},{TUM_FRAME / 'TUM_depth.png'},5000,535.4,539.2,320.1,247.6\n"
+    )
+    evaluate_cli(trained_checkpoint, tmp_path / "test", "850-851")
+    # The unseen frame is scored through a copy of the manifest, as on another machine.
+    elsewhere = tmp_path / "elsewhere.csv"
+    elsewhere.write_text(unseen.read_text())
+    run_cli(
+        "evaluate", str(trained_checkpoint), "--format", "csv", "--root", str(elsewhere), "--out", str(tmp_path / "tum")
+    )
+    config = trained_checkpoint.parents[2] / "config.yaml"
+    record_args = [
+        "--test",
+        str(tmp_path / "test" / "metrics.json"),
+        "--unseen",
+        str(tmp_path / "tum" / "metrics.json"),
+    ]
+    record_args += ["--unseen-manifest", str(unseen), "--config", str(config), "-s", "train.steps=6"]
+    record_args += ["-s", "generator.work_scale=2", "--source", "a tiny run", "--out", str(tmp_path / "compared")]
+    run_cli("record", "Scored elsewhere", *record_args)
+    stored = tmp_path / "compared" / "scored-elsewhere.json"
+
+    inputs = ReportInputs(trained_checkpoint, SEVEN_SCENES, unseen, {}, tmp_path / "docs", test_frames="850-851")
+    test, manifest = SevenScenesReader(SEVEN_SCENES, "850-851"), ManifestReader(unseen)
+    direct = _compared("direct", trained_checkpoint, test, manifest, inputs)
+    via_record = _compared("stored", stored, test, manifest, inputs)
+    for field in ("split", "min_m", "max_m", "unseen"):
+        assert getattr(via_record, field) == getattr(direct, field), field
+    for field in ("test", "unseen_metrics", "pc_rmse"):
+        assert getattr(via_record, field) == pytest.approx(getattr(direct, field)), field
+    assert via_record.config == direct.config and via_record.source == "a tiny run"
+    # Two evaluations under different depth ranges cannot make one record.
+    run_cli(
+        "evaluate",
+        str(trained_checkpoint),
+        "--format",
+        "csv",
+        "--root",
+        str(elsewhere),
+        "--out",
+        str(tmp_path / "far"),
+        "--max-depth",
+        "5",
+    )
+    far = [*record_args[:2], "--unseen", str(tmp_path / "far" / "metrics.json"), *record_args[4:]]
+    result = subprocess.run(
+        [sys.executable, "-m", "model", "record", "x", *far], cwd=REPO, capture_output=True, text=True
+    )
+    assert result.returncode != 0 and "unseen on [0.1, 5.0] m" in result.stderr + result.stdout
 
 
 def test_a_refit_without_validation_frames_publishes_its_last_checkpoint():
