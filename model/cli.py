@@ -214,7 +214,7 @@ def record(
     label: Annotated[str, typer.Argument(help="the report row's label; also names the record file")],
     test: Annotated[Path, typer.Option(help="metrics.json of `rgb2cloud evaluate` on the test split", exists=True)],
     unseen: Annotated[Path, typer.Option(help="metrics.json of `rgb2cloud evaluate` on the unseen frame", exists=True)],
-    unseen_manifest: Annotated[str, typer.Option(help="the --unseen manifest the report runs with")],
+    unseen_manifest: Annotated[Path, typer.Option(help="the --unseen manifest the report runs with", exists=True)],
     config: Annotated[Path, typer.Option(help="the YAML run config it was trained with", exists=True)],
     set_: Annotated[list[str], typer.Option("--set", "-s", help="the training command's overrides")] = [],  # noqa: B006
     source: Annotated[str, typer.Option(help="what was scored, where, and why it is not kept")] = "",
@@ -224,12 +224,14 @@ def record(
     import json
 
     from model.config import load_config
+    from model.data.manifest import ManifestReader
     from model.scores import now, record_from_evaluations, record_path, write_record
 
     stored = record_from_evaluations(
         json.loads(test.read_text()),
         json.loads(unseen.read_text()),
-        unseen_manifest=unseen_manifest,
+        unseen_manifest=str(unseen_manifest),
+        unseen_images=len(ManifestReader(unseen_manifest)),
         config=load_config(config, set_).model_dump(mode="json"),
         source=source or str(test.parent),
         scored=f"scored by rgb2cloud evaluate, stored {now()} by rgb2cloud record",

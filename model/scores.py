@@ -72,18 +72,27 @@ _DIAGNOSTICS = ("median_scaled", "median_ratio")
 
 
 def record_from_evaluations(
-    test: dict, unseen: dict, *, unseen_manifest: str, config: dict, source: str, scored: str
+    test: dict,
+    unseen: dict,
+    *,
+    unseen_manifest: str,
+    unseen_images: int,
+    config: dict,
+    source: str,
+    scored: str,
 ) -> ScoreRecord:
     """A record from two ``rgb2cloud evaluate`` outputs: the test split and the unseen manifest.
 
-    ``unseen_manifest`` is the manifest path the report is run with; the evaluation
-    may have read a copy of it elsewhere, which is why it is named here, not read
-    from the file. Both must share one depth range, as the report's rows do.
+    ``unseen_manifest`` is the manifest path the report is run with, holding
+    ``unseen_images`` rows; the evaluation may have read a copy of it elsewhere,
+    which is why it is named here, not read from the file. Both evaluations must
+    share one depth range, as the report's rows do.
     """
     if test["depth_range_m"] != unseen["depth_range_m"]:
         raise ValueError(f"test scored on {test['depth_range_m']} m, unseen on {unseen['depth_range_m']} m")
-    if unseen["metrics"]["images"] != 1:
-        raise ValueError(f"the unseen evaluation holds {unseen['metrics']['images']} images; the report's has one")
+    frames = unseen["metrics"]["images"]
+    if frames != unseen_images:
+        raise ValueError(f"the unseen evaluation scored {frames} frame(s), {unseen_manifest} has {unseen_images}")
     min_m, max_m = test["depth_range_m"]
 
     def protocol(metrics: dict) -> dict:

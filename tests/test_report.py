@@ -166,6 +166,14 @@ def test_a_run_scored_elsewhere_is_stored_as_the_record_the_report_would_make(tr
         [sys.executable, "-m", "model", "record", "x", *far], cwd=REPO, capture_output=True, text=True
     )
     assert result.returncode != 0 and "unseen on [0.1, 5.0] m" in result.stderr + result.stdout
+    # Nor can an evaluation of one frame stand for a manifest of two.
+    two = tmp_path / "two.csv"
+    two.write_text(unseen.read_text() + unseen.read_text().splitlines()[1] + "\n")
+    other = [arg if arg != str(unseen) else str(two) for arg in record_args]
+    result = subprocess.run(
+        [sys.executable, "-m", "model", "record", "x", *other], cwd=REPO, capture_output=True, text=True
+    )
+    assert result.returncode != 0 and "scored 1 frame(s)" in result.stderr + result.stdout
 
 
 def test_a_refit_without_validation_frames_publishes_its_last_checkpoint():
