@@ -7,6 +7,7 @@ import dataclasses
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,13 +30,25 @@ from model.report import (
 )
 
 
-def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, trained_checkpoint, tmp_path):
-    out = tmp_path / "docs"
-    unseen = tmp_path / "tum-fr3-office.csv"  # the unseen frame, read in place
-    unseen.write_text(
+def write_unseen_manifest(path: Path) -> Path:
+    """The report's unseen scene: a one-row manifest reading the real TUM frame in place."""
+    path.write_text(
         "rgb,depth,depth_scale,fx,fy,cx,cy\n"
         f"{TUM_FRAME / 'TUM_color.png'},{TUM_FRAME / 'TUM_depth.png'},5000,535.4,539.2,320.1,247.6\n"
     )
+    return path
+
+
+def refused(*args: str) -> str:
+    """``rgb2cloud ARGS`` that must fail: its output, to check the message."""
+    result = subprocess.run([sys.executable, "-m", "model", *args], cwd=REPO, capture_output=True, text=True)
+    assert result.returncode != 0, f"rgb2cloud {' '.join(args)} succeeded"
+    return result.stdout + result.stderr
+
+
+def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, trained_checkpoint, tmp_path):
+    out = tmp_path / "docs"
+    unseen = write_unseen_manifest(tmp_path / "tum-fr3-office.csv")  # the unseen frame, read in place
     run_cli(
         "report",
         str(registry / "tiny" / "0.1.0"),
@@ -115,11 +128,7 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
 
 def test_a_run_scored_elsewhere_is_stored_as_the_record_the_report_would_make(trained_checkpoint, tmp_path):
     """``rgb2cloud record`` from ``evaluate``'s two outputs equals the report scoring the checkpoint itself."""
-    unseen = tmp_path / "tum-fr3-office.csv"
-    unseen.write_text(
-        "rgb,depth,depth_scale,fx,fy,cx,cy\n"
-        f"{TUM_FRAME / 'TUM_color.png'},{TUM_FRAME / 'TUM_depth.png'},5000,535.4,539.2,320.1,247.6\n"
-    )
+    unseen = write_unseen_manifest(tmp_path / "tum-fr3-office.csv")
     evaluate_cli(trained_checkpoint, tmp_path / "test", "850-851")
     # The unseen frame is scored through a copy of the manifest, as on another machine.
     elsewhere = tmp_path / "elsewhere.csv"
@@ -162,18 +171,12 @@ def test_a_run_scored_elsewhere_is_stored_as_the_record_the_report_would_make(tr
         "5",
     )
     far = [*record_args[:2], "--unseen", str(tmp_path / "far" / "metrics.json"), *record_args[4:]]
-    result = subprocess.run(
-        [sys.executable, "-m", "model", "record", "x", *far], cwd=REPO, capture_output=True, text=True
-    )
-    assert result.returncode != 0 and "unseen on [0.1, 5.0] m" in result.stderr + result.stdout
+    assert "unseen on [0.1, 5.0] m" in refused("record", "x", *far)
     # Nor can an evaluation of one frame stand for a manifest of two.
     two = tmp_path / "two.csv"
     two.write_text(unseen.read_text() + unseen.read_text().splitlines()[1] + "\n")
     other = [arg if arg != str(unseen) else str(two) for arg in record_args]
-    result = subprocess.run(
-        [sys.executable, "-m", "model", "record", "x", *other], cwd=REPO, capture_output=True, text=True
-    )
-    assert result.returncode != 0 and "scored 1 frame(s)" in result.stderr + result.stdout
+    assert "scored 1 frame(s)" in refused("record", "x", *other)
 
 
 def test_a_refit_without_validation_frames_publishes_its_last_checkpoint():
