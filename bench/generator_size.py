@@ -39,6 +39,11 @@ CONFIGS = [
         "configs/7scenes-default.yaml",
         ["generator.dilations=[1, 2, 4, 8, 4, 2]"],
     ),
+    (
+        "bundled shape at full resolution (work_scale 1)",
+        "configs/7scenes-default.yaml",
+        ["generator.dilations=[1, 2, 4, 8, 4, 2]", "generator.work_scale=1"],
+    ),
     ("paper size: 32 filters, 4 downsamplings, 9 blocks, full resolution", "configs/7scenes-paper.yaml", []),
 ]
 
