@@ -60,11 +60,19 @@ def evaluate(
             "and print that ratio's spread (how much of the error is one distance per view)"
         ),
     ] = False,
+    where_fails: Annotated[
+        bool,
+        typer.Option(
+            help="diagnostic: also split the delta1 failures between pixels within 3 px of a ground-truth "
+            "depth step of over 25% and the rest (blurred edges against wrong surfaces)"
+        ),
+    ] = False,
 ) -> None:
     """Score a model with the paper's metrics and print the paper's table."""
     from model.config import DataSource
     from model.data.sources import describe, open_source
     from model.evaluate import evaluate_frames, load_predictor, markdown_table, write_report
+    from model.failures import where_fails_line
 
     predict, label = load_predictor(model, flip_average)
     source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file)
@@ -76,6 +84,7 @@ def evaluate(
         samples=samples,
         progress=True,
         median_scaled=median_scaled,
+        where_fails=where_fails,
     )
     table = write_report(
         out, result, per_image, grid, split=describe(source), label=label, depth_range=(min_depth, max_depth)
@@ -88,6 +97,8 @@ def evaluate(
             f"{ratio['mean']:.3f} +- {ratio['std']:.3f}; with each prediction scaled by it:\n"
             + markdown_table({f"{label}, median-scaled": result["median_scaled"]})
         )
+    if where_fails:
+        typer.echo("\n" + where_fails_line(result["where_fails"]))
     typer.echo(f"wrote {out}/metrics.json, metrics.md, pc_rmse_curve.png, samples.png")
 
 

@@ -18,6 +18,7 @@ from model.card import ONNX_FILE, load_card, verify_files
 from model.checkpoint import load_ensemble
 from model.data.frames import Frame
 from model.data.transforms import resize_frame
+from model.failures import FailureAccumulator
 from model.metrics import METRIC_NAMES, MetricAccumulator, median_ratio, valid_mask
 from model.runtime import OnnxGenerator, TorchModuleGenerator
 from model.visualize import plot_pc_curve, sample_grid
@@ -47,6 +48,7 @@ def evaluate_frames(
     samples: int = 0,
     progress: bool = False,
     median_scaled: bool = False,
+    where_fails: bool = False,
 ) -> tuple[dict, list[dict], list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
     """Predict every frame (resized by ``scale``) and average the per-image metrics.
 
@@ -58,9 +60,12 @@ def evaluate_frames(
     the metrics after scaling each prediction by its ``median_ratio``
     (``result["median_scaled"]``) and that ratio's mean and standard deviation
     over the images (``result["median_ratio"]``; per image as ``median_ratio``).
+    ``where_fails`` adds ``result["where_fails"]``: how the delta1 failures split
+    between pixels near ground-truth depth steps and the rest (``model.failures``).
     """
     acc = MetricAccumulator(min_m=min_m, max_m=max_m)
     scaled = MetricAccumulator(min_m=min_m, max_m=max_m)
+    failures = FailureAccumulator()
     per_image, grid = [], []
     keep = set(np.linspace(0, len(frames) - 1, samples).round().astype(int)) if samples else set()
     for i in tqdm(range(len(frames)), desc="evaluate", disable=not progress, unit="img"):
@@ -73,6 +78,8 @@ def evaluate_frames(
         if row and median_scaled:
             row = {**row, "median_ratio": median_ratio(pred, frame.depth, valid_mask(frame.depth, min_m, max_m))}
             scaled.add(pred * row["median_ratio"], frame.depth, frame.intrinsics, frame.name)
+        if row and where_fails:
+            failures.add(pred, frame.depth, valid_mask(frame.depth, min_m, max_m))
         if row:
             per_image.append({"name": frame.name, **row})
         if i in keep:
@@ -82,6 +89,8 @@ def evaluate_frames(
         ratios = [r["median_ratio"] for r in per_image]
         result["median_scaled"] = scaled.result()
         result["median_ratio"] = {"mean": float(np.mean(ratios)), "std": float(np.std(ratios))}
+    if where_fails:
+        result["where_fails"] = failures.result()
     return result, per_image, grid
 
 
