@@ -75,11 +75,13 @@ def evaluate_frames(
             frame = resize_frame(frame, round(h * scale), round(w * scale))
         pred = predict(frame.rgb)
         row = acc.add(pred, frame.depth, frame.intrinsics, frame.name)
-        if row and median_scaled:
-            row = {**row, "median_ratio": median_ratio(pred, frame.depth, valid_mask(frame.depth, min_m, max_m))}
-            scaled.add(pred * row["median_ratio"], frame.depth, frame.intrinsics, frame.name)
-        if row and where_fails:
-            failures.add(pred, frame.depth, valid_mask(frame.depth, min_m, max_m))
+        if row and (median_scaled or where_fails):
+            valid = valid_mask(frame.depth, min_m, max_m)
+            if median_scaled:
+                row = {**row, "median_ratio": median_ratio(pred, frame.depth, valid)}
+                scaled.add(pred * row["median_ratio"], frame.depth, frame.intrinsics, frame.name)
+            if where_fails:
+                failures.add(pred, frame.depth, valid)
         if row:
             per_image.append({"name": frame.name, **row})
         if i in keep:

@@ -6,8 +6,8 @@ causes that call for different changes: a whole view at the wrong distance
 (which ``median_ratio`` measures) fails smooth surfaces everywhere, while a
 blurred or misplaced depth step fails only the few pixels beside each step,
 where no per-view scale can help. So each valid pixel is labelled *near a step*
-when, within ``radius`` pixels, the ground truth's largest valid depth is more
-than ``step_ratio`` times its smallest (the same 1.25 as delta1: a prediction
+when, within ``STEP_RADIUS`` pixels, the ground truth's largest valid depth is more
+than ``STEP_RATIO`` times its smallest (the same 1.25 as delta1: a prediction
 half-way across such a step fails). The counts are pooled over all pixels of
 all images, because the question is which pixels, not which images.
 """
@@ -23,14 +23,12 @@ STEP_RATIO = 1.25
 STEP_RADIUS = 3
 
 
-def near_depth_steps(
-    gt: np.ndarray, valid: np.ndarray, radius: int = STEP_RADIUS, step_ratio: float = STEP_RATIO
-) -> np.ndarray:
-    """Valid pixels within ``radius`` of a ground-truth depth step steeper than ``step_ratio``."""
-    size = 2 * radius + 1
+def near_depth_steps(gt: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Valid pixels within ``STEP_RADIUS`` of a ground-truth depth step steeper than ``STEP_RATIO``."""
+    size = 2 * STEP_RADIUS + 1
     highest = maximum_filter(np.where(valid, gt, 0.0), size=size, mode="nearest")
     lowest = minimum_filter(np.where(valid, gt, np.inf), size=size, mode="nearest")
-    return valid & (highest > step_ratio * lowest)
+    return valid & (highest > STEP_RATIO * lowest)
 
 
 @dataclass
@@ -52,7 +50,7 @@ class FailureAccumulator:
         self.failed += int(fails.sum())
         self.failed_near += int((fails & near).sum())
 
-    def result(self) -> dict[str, float]:
+    def result(self) -> dict[str, float | None]:
         """Shares of pixels; a rate is None where it has no pixel to count."""
         if not self.valid:
             raise ValueError("no valid ground-truth pixels were seen")
