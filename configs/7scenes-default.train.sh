@@ -507,6 +507,39 @@ try_change l1x3 -s "$L1X3"
 #   (the same for folda-dilated-seed2 and folda-l1x3 on 720-799, and for foldb-dilated,
 #   foldb-dilated-seed1 and foldb-l1x3 on 220-299)
 
+# 19. Where the failures beside depth steps come from: 7-Scenes' depth is the raw Kinect depth camera's,
+#     not registered to the colour camera (../shared/data/README.md). `rgb2cloud calibrate
+#     ../shared/data/7scenes-redkitchen --frames 0-799 --every 40` fits where the colour camera sits by
+#     aligning colour edges with depth steps on 20 train frames: focal length 530 px against the depth
+#     camera's 585, principal point (314.5, 239), 9 mm to the side; alignment 0.196 against 0.127 if the
+#     two were one camera. So an edge 300 px from the centre sits about 30 px apart in the two images, and
+#     a network reading the photo can only learn that offset as a blur, the more so as mirroring flips it.
+#     The change: data sources carry that colour_camera, so training sees depth moved into the colour
+#     camera (model.registration.depth_to_colour), the depth a user's point cloud needs under each pixel
+#     of the photo. Such a model is scored by reading its prediction, at each valid ground-truth pixel,
+#     at the colour pixel that sees the same point (`rgb2cloud evaluate --colour-camera`): every valid
+#     640x480 ground-truth pixel still counts, at its recorded depth, with no scaling. The recipe's
+#     runs predict the depth camera's view and are scored pixel to pixel, as before; each table states
+#     which way a row was scored, and both ways are shown for the published model and this step's refit.
+#     Same three runs as steps 14-18 (about 105 min side by side).
+#     Decided before running them, with step 14's rule and baseline (REL of the last checkpoints on the
+#     fold's validation frames, full 640x480; the recipe's two-seed mean is 0.2219 on fold A and 0.0782
+#     on fold B, 0.1500 averaged): kept only if (1) its REL averaged over the two folds is at most 0.1400
+#     and (2) it is below the recipe's two-seed mean on each fold; its refit is published as 0.6.0 only if
+#     also (3) it does not lose to 0.5.0 on the test split's REL (0.102) and delta1 (0.915). The generator
+#     is unchanged, so the 300 ms and 20 MB limits hold as for 0.5.0. Either way the test split scores
+#     the refit once and the report shows it.
+COLOUR='colour_camera: {fx: 530, fy: 530, cx: 314.5, cy: 239, baseline_m: 0.009}'
+REGISTERED_TRAIN_A="{format: 7scenes, root: ../shared/data/7scenes-redkitchen, frames: \"0-669\", $COLOUR}"
+REGISTERED_TRAIN_B="{format: 7scenes, root: ../shared/data/7scenes-redkitchen, frames: \"0-169,350-799\", $COLOUR}"
+REGISTERED_TRAIN="{format: 7scenes, root: ../shared/data/7scenes-redkitchen, frames: \"0-799\", $COLOUR}"
+rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s "data.train=[$REGISTERED_TRAIN_A]" \
+    -s "$SELECT_VAL" -s train.out_dir=runs/folda-registered
+rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s "data.train=[$REGISTERED_TRAIN_B]" \
+    -s "$FOLD_B_VAL" -s train.out_dir=runs/foldb-registered
+rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s "data.train=[$REGISTERED_TRAIN]" \
+    -s 'data.val=[]' -s train.out_dir=runs/refit-registered
+
 # GPU. Beside the steps, on a leased GPU (issue 4, item 3): the paper's own size and objective,
 #      configs/7scenes-paper.yaml (32 filters, 4 downsamplings, 9 residual blocks, cGAN + 10 x FM only,
 #      full 640x480 frames, bf16 mixed precision), trained on the whole train split 0-799 with no

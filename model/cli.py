@@ -1,5 +1,5 @@
-"""The ``rgb2cloud`` command line: train, evaluate, export, baselines, novelty, report,
-record, client.
+"""The ``rgb2cloud`` command line: train, evaluate, export, baselines, novelty, calibrate,
+report, record, client.
 
 Heavy imports happen inside each command, so ``rgb2cloud --help`` is instant and
 the torch-free parts of the project never pay for torch.
@@ -186,6 +186,31 @@ def novelty(
     for train_frames, _, held_out in pairs:
         gap = view_novelty(read_poses(root, train_frames), read_poses(root, held_out))
         typer.echo(f"| {train_frames} | {held_out} | {gap.frames} | {gap.distance_m:.2f} | {gap.angle_deg:.1f} |")
+
+
+@app.command()
+def calibrate(
+    root: Annotated[Path, typer.Argument(help="a 7-Scenes sequence folder", exists=True, file_okay=False)],
+    frames: Annotated[str, typer.Option(help="frames to fit on (train frames only)")] = "0-799",
+    every: Annotated[int, typer.Option(help="use every Nth of those frames", min=1)] = 40,
+    fx: Annotated[float, typer.Option(help="starting colour focal length (px)")] = 525.0,
+) -> None:
+    """Fit where the colour camera sits beside the depth camera, from colour edges and depth steps."""
+    from model.data.frames import parse_frame_ranges
+    from model.data.sevenscenes import SevenScenesReader
+    from model.registration import ColourCamera, alignment, fit_colour_camera
+
+    chosen = parse_frame_ranges(frames)[::every]
+    reader = SevenScenesReader(root, ",".join(str(n) for n in chosen))
+    sample = [reader[i] for i in range(len(reader))]
+    depth_camera = sample[0].intrinsics
+    unregistered = ColourCamera(fx=depth_camera.fx, fy=depth_camera.fy, cx=depth_camera.cx, cy=depth_camera.cy)
+    start = unregistered.model_copy(update={"fx": fx, "fy": fx})
+    fitted, score = fit_colour_camera(sample, start)
+    typer.echo(f"{len(sample)} frames of {frames}, every {every}th")
+    typer.echo(f"alignment as recorded (same camera): {alignment(sample, unregistered):.4f}")
+    typer.echo(f"alignment fitted: {score:.4f}")
+    typer.echo(fitted.model_dump_json())
 
 
 @app.command()

@@ -15,6 +15,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from model.codec import DepthEncoding
+from model.geometry import Intrinsics
 
 
 class _Strict(BaseModel):
@@ -162,6 +163,21 @@ class OptimConfig(_Strict):
 FORMATS = ("7scenes", "tum", "nyu", "csv")
 
 
+class ColourCamera(_Strict):
+    """The colour camera as seen from the depth camera, in pixels of the same image size."""
+
+    model_config = ConfigDict(frozen=True)
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline_m: float = 0.0
+
+    def intrinsics(self, width: int, height: int) -> Intrinsics:
+        return Intrinsics(self.fx, self.fy, self.cx, self.cy, width, height)
+
+
 class DataSource(_Strict):
     """One dataset on disk. ``root`` is a folder, or a file for nyu and csv."""
 
@@ -171,6 +187,9 @@ class DataSource(_Strict):
     split: Literal["train", "test", "all"] = Field("all", description="nyu: the official 795/654 split")
     splits_file: Path | None = Field(None, description="nyu: splits.mat (default: beside the .mat)")
     licence: str | None = Field(None, description="overrides the format's known licence")
+    colour_camera: ColourCamera | None = Field(
+        None, description="train on depth moved into this colour camera (raw Kinect depth is not registered)"
+    )
 
 
 class TransformConfig(_Strict):

@@ -3,11 +3,26 @@
 from __future__ import annotations
 
 from model.config import DataSource
-from model.data.frames import FrameReader
+from model.data.frames import Frame, FrameReader
 from model.data.manifest import ManifestReader
 from model.data.nyu import NyuReader
 from model.data.sevenscenes import SevenScenesReader
 from model.data.tum import TumReader
+from model.registration import ColourCamera, register_frame
+
+
+class RegisteredReader:
+    """A reader whose frames carry depth moved into a colour camera (``register_frame``)."""
+
+    def __init__(self, reader: FrameReader, colour: ColourCamera):
+        self.reader, self.colour = reader, colour
+        self.name, self.licence = reader.name, reader.licence
+
+    def __len__(self) -> int:
+        return len(self.reader)
+
+    def __getitem__(self, index: int) -> Frame:
+        return register_frame(self.reader[index], self.colour)
 
 
 def open_source(source: DataSource) -> FrameReader:
@@ -21,6 +36,8 @@ def open_source(source: DataSource) -> FrameReader:
         reader = ManifestReader(source.root)
     if source.licence:
         reader.licence = source.licence
+    if source.colour_camera:
+        return RegisteredReader(reader, source.colour_camera)
     return reader
 
 
