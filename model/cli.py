@@ -8,9 +8,12 @@ the torch-free parts of the project never pay for torch.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
+
+if TYPE_CHECKING:
+    from model.config import ColourCamera
 
 app = typer.Typer(help="rgb2cloud: metric depth and point clouds from one RGB image.", no_args_is_help=True)
 
@@ -67,6 +70,15 @@ def evaluate(
             "depth step of over 25% and the rest (blurred edges against wrong surfaces)"
         ),
     ] = False,
+    colour_camera: Annotated[
+        str | None,
+        typer.Option(
+            help="for a model trained on registered depth: the colour camera beside the ground truth's depth "
+            "camera, as the data config writes it, e.g. '{fx: 530, fy: 530, cx: 314.5, cy: 239, baseline_m: "
+            "0.009}' (rgb2cloud calibrate); each ground-truth pixel is compared with the prediction where the "
+            "photo sees the same point"
+        ),
+    ] = None,
 ) -> None:
     """Score a model with the paper's metrics and print the paper's table."""
     from model.config import DataSource
@@ -74,6 +86,7 @@ def evaluate(
     from model.evaluate import evaluate_frames, load_predictor, markdown_table, write_report
     from model.failures import where_fails_line
 
+    colour = parse_colour_camera(colour_camera) if colour_camera else None
     predict, label = load_predictor(model, flip_average)
     source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file)
     result, per_image, grid = evaluate_frames(
@@ -85,7 +98,10 @@ def evaluate(
         progress=True,
         median_scaled=median_scaled,
         where_fails=where_fails,
+        colour_camera=colour,
     )
+    if colour:
+        label += ", read at the colour camera"
     table = write_report(
         out, result, per_image, grid, split=describe(source), label=label, depth_range=(min_depth, max_depth)
     )
@@ -210,7 +226,8 @@ def calibrate(
     typer.echo(f"{len(sample)} frames of {frames}, every {every}th")
     typer.echo(f"alignment as recorded (same camera): {alignment(sample, unregistered):.4f}")
     typer.echo(f"alignment fitted: {score:.4f}")
-    typer.echo(fitted.model_dump_json())
+    values = ", ".join(f"{k}: {round(v, 4):g}" for k, v in fitted.model_dump().items())
+    typer.echo(f"colour_camera: {{{values}}}")
 
 
 @app.command()
@@ -301,6 +318,19 @@ def client(
         typer.echo(f"{image}: {outcome}", err=outcome.startswith("error"))
     if failed:
         raise typer.Exit(1)
+
+
+def parse_colour_camera(text: str) -> ColourCamera:
+    """``--colour-camera`` as YAML flow, the way a data source's ``colour_camera`` is written."""
+    import yaml
+    from pydantic import ValidationError
+
+    from model.config import ColourCamera
+
+    try:
+        return ColourCamera.model_validate(yaml.safe_load(text))
+    except (yaml.YAMLError, ValidationError) as e:
+        raise typer.BadParameter(f"--colour-camera {text!r}: {e}") from e
 
 
 def main() -> None:

@@ -177,6 +177,19 @@ class ColourCamera(_Strict):
     def intrinsics(self, width: int, height: int) -> Intrinsics:
         return Intrinsics(self.fx, self.fy, self.cx, self.cy, width, height)
 
+    def resized(self, scale: float) -> ColourCamera:
+        """The same camera pair after both images are resized by ``scale`` (pixel-centre convention)."""
+        if scale == 1.0:
+            return self
+        return self.model_copy(
+            update={
+                "fx": self.fx * scale,
+                "fy": self.fy * scale,
+                "cx": (self.cx + 0.5) * scale - 0.5,
+                "cy": (self.cy + 0.5) * scale - 0.5,
+            }
+        )
+
 
 class DataSource(_Strict):
     """One dataset on disk. ``root`` is a folder, or a file for nyu and csv."""

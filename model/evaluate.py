@@ -16,10 +16,12 @@ from tqdm import tqdm
 
 from model.card import ONNX_FILE, load_card, verify_files
 from model.checkpoint import load_ensemble
+from model.config import ColourCamera
 from model.data.frames import Frame
 from model.data.transforms import resize_frame
 from model.failures import FailureAccumulator
 from model.metrics import METRIC_NAMES, MetricAccumulator, median_ratio, valid_mask
+from model.registration import sample_at_colour
 from model.runtime import OnnxGenerator, TorchModuleGenerator
 from model.visualize import plot_pc_curve, sample_grid
 
@@ -49,6 +51,7 @@ def evaluate_frames(
     progress: bool = False,
     median_scaled: bool = False,
     where_fails: bool = False,
+    colour_camera: ColourCamera | None = None,
 ) -> tuple[dict, list[dict], list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
     """Predict every frame (resized by ``scale``) and average the per-image metrics.
 
@@ -62,6 +65,10 @@ def evaluate_frames(
     over the images (``result["median_ratio"]``; per image as ``median_ratio``).
     ``where_fails`` adds ``result["where_fails"]``: how the delta1 failures split
     between pixels near ground-truth depth steps and the rest (``model.failures``).
+    ``colour_camera``: the ground truth is a depth camera's and the prediction the
+    colour camera's (a model trained on registered depth); each ground-truth pixel
+    is compared with the prediction at the colour pixel that sees the same point
+    (``model.registration.sample_at_colour``), so every valid pixel still counts.
     """
     acc = MetricAccumulator(min_m=min_m, max_m=max_m)
     scaled = MetricAccumulator(min_m=min_m, max_m=max_m)
@@ -74,6 +81,8 @@ def evaluate_frames(
             h, w = frame.depth.shape
             frame = resize_frame(frame, round(h * scale), round(w * scale))
         pred = predict(frame.rgb)
+        if colour_camera is not None:
+            pred = sample_at_colour(pred, frame.depth, frame.intrinsics, colour_camera.resized(scale))
         row = acc.add(pred, frame.depth, frame.intrinsics, frame.name)
         if row and (median_scaled or where_fails):
             valid = valid_mask(frame.depth, min_m, max_m)

@@ -38,7 +38,13 @@ def colour_coordinates(depth: np.ndarray, depth_camera: Intrinsics, colour: Colo
 
 
 def depth_to_colour(depth: np.ndarray, depth_camera: Intrinsics, colour: ColourCamera) -> np.ndarray:
-    """Depth as the colour camera would see it (0 where no depth pixel lands; nearest wins)."""
+    """Depth as the colour camera would see it; nearest wins, 0 where no depth pixel lands.
+
+    Nothing is filled in: a colour pixel that no depth pixel reaches (beyond the depth
+    camera's view, or behind an edge only the colour camera sees past) has no
+    ground truth, and training masks it. With a wider colour lens, as on Kinect v1,
+    depth pixels land closer together than colour pixels, so no pinholes open.
+    """
     h, w = depth.shape
     xc, yc, z = colour_coordinates(depth, depth_camera, colour)
     col, row = np.rint(xc), np.rint(yc)
@@ -49,14 +55,7 @@ def depth_to_colour(depth: np.ndarray, depth_camera: Intrinsics, colour: ColourC
     order = np.argsort(-zs, kind="stable")
     out = np.zeros(h * w, dtype=np.float32)
     out[flat[order]] = zs[order]
-    out = out.reshape(h, w)
-    # A forward projection leaves pinholes where the colour view is denser; fill 1-px holes
-    # from their nearest neighbour, never across the colour frame's uncovered border.
-    holes = (out == 0) & ndimage.binary_closing(out > 0, iterations=1)
-    if holes.any():
-        _, (iy, ix) = ndimage.distance_transform_edt(out == 0, return_indices=True)
-        out[holes] = out[iy[holes], ix[holes]]
-    return out
+    return out.reshape(h, w)
 
 
 def register_frame(frame: Frame, colour: ColourCamera) -> Frame:

@@ -1,0 +1,164 @@
+"""Registering a depth camera to the colour camera beside it, against geometry worked out by hand."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yaml
+from conftest import SEVEN_SCENES, run_cli
+
+from model.config import ColourCamera, DataSource
+from model.data.frames import Frame
+from model.data.sources import open_source
+from model.evaluate import evaluate_frames
+from model.geometry import Intrinsics
+from model.registration import (
+    alignment,
+    colour_coordinates,
+    depth_to_colour,
+    fit_colour_camera,
+    register_frame,
+)
+
+DEPTH_CAMERA = Intrinsics(fx=100.0, fy=100.0, cx=39.5, cy=29.5, width=80, height=60)
+
+
+def _same_camera(**changes: float) -> ColourCamera:
+    return ColourCamera(fx=100.0, fy=100.0, cx=39.5, cy=29.5).model_copy(update=changes)
+
+
+def _box_scene() -> np.ndarray:
+    """A wall at 2 m with a box at 1 m in front of it, and a strip of missing depth."""
+    depth = np.full((60, 80), 2.0, dtype=np.float32)
+    depth[20:40, 30:50] = 1.0
+    depth[:, :3] = 0.0
+    return depth
+
+
+def test_a_baseline_shifts_each_point_by_focal_times_baseline_over_depth():
+    # 4 cm to the side at fx 100 px: a point at 2 m moves 2 px, one at 1 m moves 4 px.
+    colour = _same_camera(baseline_m=0.04)
+    xc, yc, z = colour_coordinates(_box_scene(), DEPTH_CAMERA, colour)
+    assert xc[10, 10] == pytest.approx(8.0) and yc[10, 10] == pytest.approx(10.0)
+    assert xc[30, 40] == pytest.approx(36.0) and z[30, 40] == pytest.approx(1.0)
+    assert np.isnan(xc[5, 1])  # no depth, no place in the colour image
+
+
+def test_a_wider_colour_lens_draws_the_scene_smaller_about_its_centre():
+    colour = _same_camera(fx=50.0, fy=50.0)
+    xc, yc, _ = colour_coordinates(_box_scene(), DEPTH_CAMERA, colour)
+    assert xc[29, 79] == pytest.approx(39.5 + 0.5 * 39.5)
+    assert yc[59, 40] == pytest.approx(29.5 + 0.5 * 29.5)
+
+
+def test_registered_depth_moves_the_box_and_the_nearer_surface_wins():
+    colour = _same_camera(baseline_m=0.04)
+    registered = depth_to_colour(_box_scene(), DEPTH_CAMERA, colour)
+    # The box (1 m) moves 4 px left, the wall (2 m) 2 px: the box now covers columns 26-45.
+    assert np.all(registered[25:35, 26:46] == 1.0)
+    assert np.all(registered[25:35, 48:78] == 2.0)
+    # Where the box moved off (2 px: 4 - 2), the wall it hid from the depth camera has no reading.
+    assert np.all(registered[25:35, 46:48] == 0.0)
+    # The colour camera's view beyond what the depth camera covers stays empty; no hole is invented.
+    assert np.all(registered[:, 78:] == 0.0)
+
+
+def test_registered_frame_carries_the_colour_camera():
+    frame = Frame(np.zeros((60, 80, 3), np.uint8), _box_scene(), DEPTH_CAMERA, "box")
+    colour = _same_camera(fx=90.0, fy=90.0, baseline_m=0.01)
+    registered = register_frame(frame, colour)
+    assert registered.intrinsics == Intrinsics(90.0, 90.0, 39.5, 29.5, 80, 60)
+    assert registered.rgb is frame.rgb and registered.depth.shape == frame.depth.shape
+
+
+def test_evaluation_reads_a_colour_frame_prediction_at_each_ground_truth_pixel():
+    """A perfect colour-frame prediction scores perfectly only when read through the colour camera."""
+    colour = _same_camera(baseline_m=0.04)
+    depth = _box_scene()
+    perfect_in_colour = depth_to_colour(depth, DEPTH_CAMERA, colour)
+    perfect_in_colour[perfect_in_colour == 0] = 2.0  # a prediction has a value everywhere
+    frames = [Frame(np.zeros((60, 80, 3), np.uint8), depth, DEPTH_CAMERA, "box")]
+    args = {"min_m": 0.1, "max_m": 10.0}
+    read_through, _, _ = evaluate_frames(lambda rgb: perfect_in_colour, frames, colour_camera=colour, **args)
+    pixel_to_pixel, _, _ = evaluate_frames(lambda rgb: perfect_in_colour, frames, **args)
+    scored = int((depth > 0).sum())
+    assert read_through["pixels"] == pixel_to_pixel["pixels"] == scored
+    # Every pixel reads its own depth back but two columns of wall beside the box (20 rows): the
+    # depth camera sees them, while the photo sees the box in front of them. They count as misses.
+    assert read_through["delta1"] == pytest.approx(1 - 40 / scored)
+    # Pixel to pixel, the box and the wall are each misplaced by their shift: more misses.
+    assert pixel_to_pixel["delta1"] < read_through["delta1"] - 0.01
+
+
+def test_the_fit_finds_a_colour_camera_from_edges_and_depth_steps():
+    """Colour edges drawn by a known camera pair lead the fit from 'one camera' to that pair."""
+    truth = _same_camera(fx=92.0, fy=92.0, cx=36.0, baseline_m=0.02)
+    rng = np.random.default_rng(0)
+    frames = []
+    for _ in range(3):
+        depth = np.full((60, 80), 3.0, dtype=np.float32)
+        for _ in range(4):
+            top, left = rng.integers(5, 40), rng.integers(5, 60)
+            depth[top : top + 15, left : left + 15] = rng.uniform(0.8, 2.0)
+        # The photo shows each surface as a flat shade, where the colour camera sees it.
+        seen = depth_to_colour(depth, DEPTH_CAMERA, truth)
+        grey = np.where(seen > 0, 40.0 * seen, 120.0)
+        frames.append(Frame(np.repeat(grey[..., None], 3, axis=2).astype(np.uint8), depth, DEPTH_CAMERA, "s"))
+    start = _same_camera()
+    fitted, score = fit_colour_camera(frames, start)
+    assert score > alignment(frames, start)
+    assert fitted.fy == fitted.fx
+
+    # The principal point and the baseline trade off against each other; what matters is where
+    # the pair puts each depth pixel in the photo. The fit misses the true place by about a pixel
+    # of this 80x60 image, where treating the two as one camera misses it by several.
+    def misplacement(camera: ColourCamera) -> float:
+        true_x, true_y, _ = colour_coordinates(frames[0].depth, DEPTH_CAMERA, truth)
+        x, y, _ = colour_coordinates(frames[0].depth, DEPTH_CAMERA, camera)
+        return float(np.nanmean(np.hypot(x - true_x, y - true_y)))
+
+    assert misplacement(fitted) < 1.5 and misplacement(start) > 3 * misplacement(fitted)
+
+
+def test_a_source_with_a_colour_camera_trains_on_registered_depth():
+    colour = ColourCamera(fx=530.0, fy=530.0, cx=314.5, cy=239.0, baseline_m=0.009)
+    raw = open_source(DataSource(format="7scenes", root=SEVEN_SCENES, frames="0"))[0]
+    registered = open_source(DataSource(format="7scenes", root=SEVEN_SCENES, frames="0", colour_camera=colour))[0]
+    assert registered.intrinsics.fx == 530.0 and raw.intrinsics.fx == 585.0
+    assert np.array_equal(registered.rgb, raw.rgb)
+    # The colour camera sees wider, so its border has no depth, and the depth it has is the same scene's.
+    assert 0.6 < (registered.depth > 0).mean() < (raw.depth > 0).mean()
+    assert np.all(registered.depth[:, :5] == 0)
+    median = np.median(registered.depth[registered.depth > 0])
+    assert median == pytest.approx(np.median(raw.depth[raw.depth > 0]), rel=0.05)
+
+
+def test_colour_camera_resizes_with_its_images():
+    colour = ColourCamera(fx=530.0, fy=530.0, cx=314.5, cy=239.0, baseline_m=0.009)
+    half = colour.resized(0.5)
+    expected = colour.intrinsics(640, 480).resized(320, 240)
+    assert (half.fx, half.fy, half.cx, half.cy) == (expected.fx, expected.fy, expected.cx, expected.cy)
+    assert half.baseline_m == colour.baseline_m and colour.resized(1.0) is colour
+
+
+def test_calibrate_fits_the_real_kinect_pair_better_than_one_camera():
+    stdout = run_cli("calibrate", str(SEVEN_SCENES), "--frames", "0-799", "--every", "400").stdout
+    recorded = float(re.search(r"as recorded \(same camera\): ([\d.]+)", stdout).group(1))
+    fitted = float(re.search(r"alignment fitted: ([\d.]+)", stdout).group(1))
+    assert fitted > recorded
+    camera = ColourCamera.model_validate(yaml.safe_load(stdout.strip().splitlines()[-1])["colour_camera"])
+    # Kinect v1's colour lens sees wider than its depth lens: a shorter focal length than 585 px.
+    assert 500 < camera.fx < 570
+
+
+def test_evaluate_refuses_a_malformed_colour_camera(tmp_path):
+    args = ["evaluate", str(tmp_path), "--format", "7scenes", "--root", str(SEVEN_SCENES), "--frames", "850"]
+    result = subprocess.run(
+        [sys.executable, "-m", "model", *args, "--colour-camera", "{fx: 530}"], capture_output=True, text=True
+    )
+    assert result.returncode == 2
+    assert "--colour-camera" in result.stderr and "fy" in result.stderr
