@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
+import yaml
 from conftest import REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, run_cli
 from PIL import Image
 
@@ -25,6 +27,8 @@ from model.report import (
     _generator_shape,
     _selection_section,
     build_report,
+    colour_camera_flag,
+    colour_camera_of,
     config_diff,
     published_checkpoint,
 )
@@ -177,6 +181,33 @@ def test_a_run_scored_elsewhere_is_stored_as_the_record_the_report_would_make(tr
     two.write_text(unseen.read_text() + unseen.read_text().splitlines()[1] + "\n")
     other = [arg if arg != str(unseen) else str(two) for arg in record_args]
     assert "scored 1 frame(s)" in refused("record", "x", *other)
+
+
+def test_a_run_trained_on_registered_depth_is_scored_through_its_colour_camera(trained_checkpoint, tmp_path):
+    """The report scores such a checkpoint as ``evaluate --colour-camera`` does, and others pixel to pixel."""
+    camera = "{fx: 530, fy: 530, cx: 314.5, cy: 239, baseline_m: 0.009}"
+    state = torch.load(trained_checkpoint, weights_only=True)
+    state["config"]["data"]["train"][0]["colour_camera"] = yaml.safe_load(camera)
+    registered = tmp_path / "registered" / "checkpoints" / "last.pt"
+    registered.parent.mkdir(parents=True)
+    torch.save(state, registered)
+    unseen = write_unseen_manifest(tmp_path / "tum-fr3-office.csv")
+    inputs = ReportInputs(registered, SEVEN_SCENES, unseen, {}, tmp_path / "docs", test_frames="850-851")
+    test, manifest = SevenScenesReader(SEVEN_SCENES, "850-851"), ManifestReader(unseen)
+    through = _compared("registered", registered, test, manifest, inputs)
+    raw = _compared("raw", trained_checkpoint, test, manifest, inputs)
+
+    args = ["--format", "7scenes", "--root", str(SEVEN_SCENES), "--frames", "850-851"]
+    run_cli("evaluate", str(registered), *args, "--out", str(tmp_path / "e"), "--colour-camera", camera)
+    evaluated = json.loads((tmp_path / "e" / "metrics.json").read_text())["metrics"]
+    assert through.test == pytest.approx(evaluated)
+    # Same weights, read another way: the pixel-to-pixel row differs; the unseen TUM frame is registered
+    # already, so both read it pixel to pixel.
+    assert through.test["rel"] != pytest.approx(raw.test["rel"])
+    assert through.unseen_metrics == pytest.approx(raw.unseen_metrics)
+    assert colour_camera_of(through.config, SEVEN_SCENES).fx == 530.0
+    assert colour_camera_of(raw.config, SEVEN_SCENES) is None
+    assert colour_camera_flag(colour_camera_of(through.config, SEVEN_SCENES)) == f" --colour-camera '{camera}'"
 
 
 def test_a_refit_without_validation_frames_publishes_its_last_checkpoint():
