@@ -2,9 +2,10 @@
 # How the bundled rgb2cloud-7scenes model and every run compared with it were trained, command by
 # command, on a 2-core CPU. `rgb2cloud report --recipe` copies this file into docs/quality.md.
 # configs/7scenes-default.yaml is the recipe that steps 1-8 start from: 0.3.0 trained it on frames
-# 0-759, and 0.4.0 is the same recipe refit on the whole train split, 0-799 (step 8). The published
+# 0-759, and 0.4.0 is the same recipe refit on the whole train split, 0-799 (step 8). Then
 # 0.5.0 adds dilated residual blocks (-s 'generator.dilations=[1, 2, 4, 8, 4, 2]') and is refit the
-# same way (step 9). Runs with -s generator.dropout=0 predate the dropout.
+# same way (step 9). The published 0.6.0 is 0.5.0's recipe trained on depth registered to the colour
+# camera (step 19). Runs with -s generator.dropout=0 predate the dropout.
 set -eu
 
 # The unseen TUM frame that the evaluation commands after this script score is read in place
@@ -539,6 +540,48 @@ rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s
     -s "$FOLD_B_VAL" -s train.out_dir=runs/foldb-registered
 rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s "data.train=[$REGISTERED_TRAIN]" \
     -s 'data.val=[]' -s train.out_dir=runs/refit-registered
+# Outcome (`rgb2cloud evaluate --colour-camera` of the last checkpoints on each fold's validation frames,
+# full 640x480, with --median-scaled --where-fails; the three runs took about 115 min side by side): the
+# rule keeps the change and the gate lets it through, so the refit's last.pt is published as 0.6.0.
+# Fold A (720-799): REL 0.1996 against the recipe's two-seed mean 0.2219; fold B (220-299): 0.0729 against
+# 0.0782. Averaged over the folds 0.1363 (at most 0.1400 asked), and below the baseline on each fold: (1)
+# and (2) hold. Ground-truth / predicted median: fold A 0.846 +- 0.025 (its views are still seen about 18%
+# too far), fold B 1.031 +- 0.048; median-scaled REL 0.073 and 0.083. Where delta1 fails: on fold B the
+# pixels away from depth steps now fail at 0.7% (the recipe's seeds: 2.2% / 1.6%), those beside steps at
+# 33.3% (40.1% / 38.6%); fold B's delta1 is 0.982. On fold A the rest fail at 26.6% (34.7% / 35.3%).
+# The refit on the test split, read at the colour camera: REL 0.096, RMSE 0.279, log10 0.044, delta1 0.940,
+# delta2 0.989, delta3 0.998, PC RMSE 0.300 (median ratio 0.999 +- 0.076); (3) holds against 0.5.0's
+# 0.102 / 0.915. TUM frame (registered by TUM, so pixel to pixel): delta1 0.41 (0.5.0: 0.33), REL 0.302.
+# Both ways, as pre-registered: the refit scored pixel to pixel on the test split gets REL 0.114, delta1
+# 0.903 (it predicts the photo's view, so that misplaces its edges), and 0.5.0 read at the colour camera
+# gets REL 0.092, RMSE 0.296, log10 0.042, delta1 0.927, delta2 0.987, delta3 0.996, PC RMSE 0.317. So
+# 0.5.0, trained on raw depth, had mostly learnt the photo's view too, and the pixel-to-pixel protocol
+# charged it for the camera offset; like for like (both read at the colour camera) 0.6.0 gains delta1
+# (0.940 against 0.927), RMSE, delta2, delta3, PC RMSE and the TUM frame, and loses REL (0.096 against
+# 0.092) and log10 (0.044 against 0.042). The gate was written against 0.5.0's published figures, and it
+# is applied as written; the like-for-like row is in the report beside it. 0.6.0 beats the paper's
+# Table 2 on REL, RMSE, log10, delta2 and delta3, and misses delta1 by 0.002 (0.940 against 0.942).
+# The commands that scored them (C is the COLOUR camera above, as '{fx: 530, ...}'):
+#   rgb2cloud evaluate runs/folda-registered/checkpoints/last.pt --format 7scenes --root $R --frames 720-799 \
+#       --median-scaled --where-fails --colour-camera "$C" --out runs/folda-registered/eval-val
+#   rgb2cloud evaluate runs/foldb-registered/checkpoints/last.pt --format 7scenes --root $R --frames 220-299 \
+#       --median-scaled --where-fails --colour-camera "$C" --out runs/foldb-registered/eval-val
+#   rgb2cloud evaluate runs/refit-registered/checkpoints/last.pt --format 7scenes --root $R --frames 850-999 \
+#       --median-scaled --colour-camera "$C" --out runs/refit-registered/eval-test
+#   rgb2cloud evaluate runs/refit-registered/checkpoints/last.pt --format csv --root runs/tum-fr3-office.csv \
+#       --median-scaled --out runs/refit-registered/eval-unseen
+#   rgb2cloud evaluate runs/refit-registered/checkpoints/last.pt --format 7scenes --root $R --frames 850-999 \
+#       --out runs/refit-registered/eval-test-raw   (pixel to pixel)
+#   rgb2cloud evaluate weights/rgb2cloud-7scenes/0.5.0 --format 7scenes --root $R --frames 850-999 \
+#       --colour-camera "$C" --out runs/published-0.5.0/eval-test-colour
+#   rgb2cloud evaluate weights/rgb2cloud-7scenes/0.5.0 --format csv --root runs/tum-fr3-office.csv \
+#       --out runs/published-0.5.0/eval-unseen   (0.5.0 left weights/ with 0.6.0; it is in git history)
+#   The two rows scored both ways join the report as records (`rgb2cloud record`, README): "0.5.0 read at
+#   the colour camera" from runs/published-0.5.0/, and "0.6.0's checkpoint scored pixel to pixel" from
+#   runs/refit-registered/eval-test-raw and eval-unseen, each with its training command's config.
+#   rgb2cloud export runs/refit-registered/checkpoints/last.pt --name rgb2cloud-7scenes --version 0.6.0 \
+#       --metrics runs/refit-registered/eval-test/metrics.json --metrics runs/refit-registered/eval-unseen/metrics.json \
+#       --parity-image ../shared/data/tum-fr3-office/TUM_color.png --registry weights
 
 # GPU. Beside the steps, on a leased GPU (issue 4, item 3): the paper's own size and objective,
 #      configs/7scenes-paper.yaml (32 filters, 4 downsamplings, 9 residual blocks, cGAN + 10 x FM only,
