@@ -101,7 +101,9 @@ def alignment(frames: Sequence[Frame], colour: ColourCamera) -> float:
     return float(np.mean(scores))
 
 
-#: Coordinate search: per parameter, the step sizes tried in turn (coarse to fine).
+#: Coordinate search: per parameter, the step sizes tried in turn (coarse to fine), sized for
+#: 640x480 images (a pixel or less at the last).
+SEARCH_ROUNDS = 3
 SEARCH_STEPS = {
     "fx": (16.0, 4.0, 1.0),
     "cx": (8.0, 2.0, 0.5),
@@ -119,7 +121,7 @@ def fit_colour_camera(frames: Sequence[Frame], start: ColourCamera) -> tuple[Col
     """
     best = start
     best_score = alignment(frames, best)
-    for round_ in range(3):
+    for round_ in range(SEARCH_ROUNDS):
         improved = True
         while improved:
             improved = False
