@@ -212,9 +212,10 @@ def calibrate(
     fx: Annotated[float, typer.Option(help="starting colour focal length (px)")] = 525.0,
 ) -> None:
     """Fit where the colour camera sits beside the depth camera, from colour edges and depth steps."""
+    from model.config import ColourCamera
     from model.data.frames import parse_frame_ranges
     from model.data.sevenscenes import SevenScenesReader
-    from model.registration import ColourCamera, alignment, fit_colour_camera
+    from model.registration import alignment, fit_colour_camera
 
     chosen = parse_frame_ranges(frames)[::every]
     reader = SevenScenesReader(root, ",".join(str(n) for n in chosen))
@@ -226,8 +227,7 @@ def calibrate(
     typer.echo(f"{len(sample)} frames of {frames}, every {every}th")
     typer.echo(f"alignment as recorded (same camera): {alignment(sample, unregistered):.4f}")
     typer.echo(f"alignment fitted: {score:.4f}")
-    values = ", ".join(f"{k}: {round(v, 4):g}" for k, v in fitted.model_dump().items())
-    typer.echo(f"colour_camera: {{{values}}}")
+    typer.echo(f"colour_camera: {fitted.flow()}")
 
 
 @app.command()

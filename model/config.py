@@ -177,6 +177,10 @@ class ColourCamera(_Strict):
     def intrinsics(self, width: int, height: int) -> Intrinsics:
         return Intrinsics(self.fx, self.fy, self.cx, self.cy, width, height)
 
+    def flow(self) -> str:
+        """YAML flow, as a data source's ``colour_camera`` and ``evaluate --colour-camera`` take it."""
+        return "{" + ", ".join(f"{k}: {round(v, 4):g}" for k, v in self.model_dump().items()) + "}"
+
     def resized(self, scale: float) -> ColourCamera:
         """The same camera pair after both images are resized by ``scale`` (pixel-centre convention)."""
         if scale == 1.0:

@@ -120,7 +120,7 @@ def colour_camera_flag(colour: ColourCamera | None) -> str:
     """`` --colour-camera '{...}'`` as the evaluate command takes it, or nothing."""
     if colour is None:
         return ""
-    return " --colour-camera '{" + ", ".join(f"{k}: {v:g}" for k, v in colour.model_dump().items()) + "}'"
+    return f" --colour-camera '{colour.flow()}'"
 
 
 def render_pair(pred: np.ndarray, frame: Frame, colour: ColourCamera | None = None) -> Image.Image:
