@@ -583,6 +583,30 @@ rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s
 #       --metrics runs/refit-registered/eval-test/metrics.json --metrics runs/refit-registered/eval-unseen/metrics.json \
 #       --parity-image ../shared/data/tum-fr3-office/TUM_color.png --registry weights
 
+# 20. Step 10's multi-scale gradient matching (loss.gradient_matching=50) again, now on step 19's
+#     registered depth. Step 10 tried it on raw depth, whose steps sit up to about 30 px from the colour
+#     edges the network sees, so a term that rewards sharp steps in the right place had no right place to
+#     reward; it moved nothing (median-scaled REL 0.097 against 0.099). Registration put the steps under
+#     the edges, and on fold B the pixels beside depth steps are still where delta1 fails: 33.3% of them
+#     fail against 0.7% of the rest (step 19). The term scores log-depth differences between neighbours,
+#     so it sharpens steps without touching a view's distance. Same three runs as step 19, with the same
+#     colour camera, side by side at one thread each (about 105 min), all seed 0.
+#     Decided before running them, with step 14's rule and step 19's runs as the new baseline (REL of the
+#     last checkpoints on the fold's validation frames, full 640x480, read at the colour camera with
+#     `rgb2cloud evaluate --colour-camera`; 0.1996 on fold A and 0.0729 on fold B, 0.1363 averaged): the
+#     change is kept only if (1) its REL averaged over the two folds is at most 0.1263 and (2) it is below
+#     the baseline on each fold. Its refit is published as 0.7.0 only if also (3) it does not lose to 0.6.0
+#     on the test split read at the colour camera, REL (0.096) and delta1 (0.940). The generator is
+#     unchanged, so the 300 ms and 20 MB limits hold as for 0.6.0. Either way the test split scores the
+#     refit once and the report shows it.
+REGISTERED_GRADIENT=(-s "$DILATED" -s loss.gradient_matching=50)
+rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 "${REGISTERED_GRADIENT[@]}" \
+    -s "data.train=[$REGISTERED_TRAIN_A]" -s "$SELECT_VAL" -s train.out_dir=runs/folda-registered-gradient
+rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 "${REGISTERED_GRADIENT[@]}" \
+    -s "data.train=[$REGISTERED_TRAIN_B]" -s "$FOLD_B_VAL" -s train.out_dir=runs/foldb-registered-gradient
+rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 "${REGISTERED_GRADIENT[@]}" \
+    -s "data.train=[$REGISTERED_TRAIN]" -s 'data.val=[]' -s train.out_dir=runs/refit-registered-gradient
+
 # GPU. Beside the steps, on a leased GPU (issue 4, item 3): the paper's own size and objective,
 #      configs/7scenes-paper.yaml (32 filters, 4 downsamplings, 9 residual blocks, cGAN + 10 x FM only,
 #      full 640x480 frames, bf16 mixed precision), trained on the whole train split 0-799 with no
