@@ -23,7 +23,7 @@ from pathlib import Path
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from model.codec import DepthEncoding
-from model.config import GeneratorConfig
+from model.config import ColourCamera, GeneratorConfig
 
 CARD_FILE = "card.json"
 ONNX_FILE = "generator.onnx"
@@ -69,6 +69,11 @@ class Metrics(BaseModel):
     delta2: float
     delta3: float
     pc_rmse_mean: float
+    colour_camera: ColourCamera | None = Field(
+        None,
+        description="set when the prediction was read at this colour camera for each ground-truth depth-camera "
+        "pixel (evaluate --colour-camera, a model trained on registered depth); absent: pixel to pixel",
+    )
 
 
 class Training(BaseModel):

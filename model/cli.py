@@ -103,7 +103,14 @@ def evaluate(
     if colour:
         label += ", read at the colour camera"
     table = write_report(
-        out, result, per_image, grid, split=describe(source), label=label, depth_range=(min_depth, max_depth)
+        out,
+        result,
+        per_image,
+        grid,
+        split=describe(source),
+        label=label,
+        depth_range=(min_depth, max_depth),
+        colour_camera=colour,
     )
     typer.echo(table)
     if median_scaled:

@@ -171,8 +171,13 @@ def write_report(
     split: str,
     label: str,
     depth_range: tuple[float, float],
+    colour_camera: ColourCamera | None = None,
 ) -> str:
-    """Write JSON, Markdown, the curve and the samples; return the Markdown table."""
+    """Write JSON, Markdown, the curve and the samples; return the Markdown table.
+
+    ``colour_camera`` is recorded as ``read_at_colour_camera`` (null: pixel to pixel), so a
+    card built from this file says how its numbers were read.
+    """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     table = markdown_table({label: result, "paper (TUM, Table 2)": PAPER_TUM})
@@ -180,6 +185,7 @@ def write_report(
         "split": split,
         "depth_range_m": list(depth_range),
         "averaging": "per image over its valid pixels, then the mean over images; no median scaling",
+        "read_at_colour_camera": colour_camera.model_dump() if colour_camera else None,
         "metrics": result,
         "beats_paper": beats(result, PAPER_TUM),
         "per_image": per_image,

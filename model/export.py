@@ -124,6 +124,7 @@ def metrics_from_report(path: Path) -> Metrics:
         split=report["split"],
         images=m["images"],
         depth_range_m=tuple(report["depth_range_m"]),
+        colour_camera=report.get("read_at_colour_camera"),
         **{k: m[k] for k in ("rel", "rmse", "log10", "delta1", "delta2", "delta3", "pc_rmse_mean")},
     )
 

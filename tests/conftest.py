@@ -62,8 +62,8 @@ def run_cli(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess:
     return result
 
 
-def evaluate_cli(model: Path, out: Path, frames: str, samples: int = 0) -> subprocess.CompletedProcess:
-    """``rgb2cloud evaluate`` of a checkpoint or version folder on 7-Scenes test frames."""
+def evaluate_cli(model: Path, out: Path, frames: str, *options: str, samples: int = 0) -> subprocess.CompletedProcess:
+    """``rgb2cloud evaluate`` of a checkpoint or version folder on 7-Scenes test frames, plus ``options``."""
     return run_cli(
         "evaluate",
         str(model),
@@ -77,6 +77,7 @@ def evaluate_cli(model: Path, out: Path, frames: str, samples: int = 0) -> subpr
         str(out),
         "--samples",
         str(samples),
+        *options,
     )
 
 

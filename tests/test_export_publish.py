@@ -32,8 +32,8 @@ from model.card import (
 )
 from model.checkpoint import load_ensemble, load_generator
 from model.codec import INPUT_ENCODING, DepthEncoding
-from model.config import GeneratorConfig
-from model.export import check_parity, export_onnx, export_torchscript, parity_sizes
+from model.config import ColourCamera, GeneratorConfig
+from model.export import check_parity, export_onnx, export_torchscript, metrics_from_report, parity_sizes
 from model.networks import GlobalGenerator
 from model.report import config_diff, training_config
 from model.runtime import OnnxGenerator
@@ -151,6 +151,7 @@ def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_check
     assert (card.camera.fx, card.camera.cx, card.camera.width) == (585.0, 320.0, 640)
     assert "non-commercial" in card.training.data[0].licence and card.training.data[0].frames == "0-3"
     assert card.metrics[0].split == "7scenes-redkitchen 850-852"
+    assert card.metrics[0].colour_camera is None  # scored pixel to pixel, and the card says so
     assert card.training.steps == 6 and card.training.hardware
     assert card.trainer_commit
     assert max(card.parity.values()) <= 1e-4
@@ -167,6 +168,15 @@ def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_check
     assert again.returncode == 1 and again.stderr.startswith("error: ") and "already exists" in again.stderr
     assert "Traceback" not in again.stderr
     assert load_card(folder) == card  # untouched
+
+
+def test_a_card_says_its_metrics_were_read_at_the_colour_camera(trained_checkpoint, tmp_path):
+    camera = "{fx: 530, fy: 530, cx: 314.5, cy: 239, baseline_m: 0.009}"
+    evaluate_cli(trained_checkpoint, tmp_path, "850", "--colour-camera", camera)
+    report = json.loads((tmp_path / "metrics.json").read_text())
+    expected = ColourCamera(fx=530, fy=530, cx=314.5, cy=239, baseline_m=0.009)
+    assert report["read_at_colour_camera"] == expected.model_dump()
+    assert metrics_from_report(tmp_path / "metrics.json").colour_camera == expected
 
 
 def _card(version: str) -> ModelCard:
