@@ -74,9 +74,9 @@ def evaluate(
         str | None,
         typer.Option(
             help="for a model trained on registered depth: the colour camera beside the ground truth's depth "
-            "camera, as the data config writes it, e.g. '{fx: 530, fy: 530, cx: 314.5, cy: 239, baseline_m: "
-            "0.009}' (rgb2cloud calibrate); each ground-truth pixel is compared with the prediction where the "
-            "photo sees the same point"
+            "camera, as the data config writes it, e.g. '{fx: 528, fy: 528, cx: 315.5, cy: 238.5, "
+            "baseline_m: 0.012, roll_deg: 0.55}' (rgb2cloud calibrate); each ground-truth pixel is compared "
+            "with the prediction where the photo sees the same point"
         ),
     ] = None,
 ) -> None:
@@ -217,6 +217,13 @@ def calibrate(
     frames: Annotated[str, typer.Option(help="frames to fit on (train frames only)")] = "0-799",
     every: Annotated[int, typer.Option(help="use every Nth of those frames", min=1)] = 40,
     fx: Annotated[float, typer.Option(help="starting colour focal length (px)")] = 525.0,
+    compare: Annotated[
+        list[str],
+        typer.Option(
+            help="a colour camera (YAML flow, as printed) whose alignment on the same frames is printed "
+            "too: on frames the fit did not use, it says whether one fitted camera generalises better"
+        ),
+    ] = [],  # noqa: B006
 ) -> None:
     """Fit where the colour camera sits beside the depth camera, from colour edges and depth steps."""
     from model.config import ColourCamera
@@ -224,6 +231,7 @@ def calibrate(
     from model.data.sevenscenes import SevenScenesReader
     from model.registration import alignment, fit_colour_camera
 
+    others = [parse_colour_camera(text, "--compare") for text in compare]
     chosen = parse_frame_ranges(frames)[::every]
     reader = SevenScenesReader(root, ",".join(str(n) for n in chosen))
     sample = [reader[i] for i in range(len(reader))]
@@ -233,6 +241,8 @@ def calibrate(
     fitted, score = fit_colour_camera(sample, start)
     typer.echo(f"{len(sample)} frames of {frames}, every {every}th")
     typer.echo(f"alignment as recorded (same camera): {alignment(sample, unregistered):.4f}")
+    for text, camera in zip(compare, others, strict=True):
+        typer.echo(f"alignment of {text}: {alignment(sample, camera):.4f}")
     typer.echo(f"alignment fitted: {score:.4f}")
     typer.echo(f"colour_camera: {fitted.flow()}")
 
@@ -327,8 +337,8 @@ def client(
         raise typer.Exit(1)
 
 
-def parse_colour_camera(text: str) -> ColourCamera:
-    """``--colour-camera`` as YAML flow, the way a data source's ``colour_camera`` is written."""
+def parse_colour_camera(text: str, option: str = "--colour-camera") -> ColourCamera:
+    """A colour camera option as YAML flow, the way a data source's ``colour_camera`` is written."""
     import yaml
     from pydantic import ValidationError
 
@@ -337,7 +347,7 @@ def parse_colour_camera(text: str) -> ColourCamera:
     try:
         return ColourCamera.model_validate(yaml.safe_load(text))
     except (yaml.YAMLError, ValidationError) as e:
-        raise typer.BadParameter(f"--colour-camera {text!r}: {e}") from e
+        raise typer.BadParameter(f"{option} {text!r}: {e}") from e
 
 
 def main() -> None:

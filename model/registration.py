@@ -10,7 +10,9 @@ pixel that sees the same 3D point (``sample_at_colour``). Both need the
 ground-truth depth itself: where a point lands depends on how far it is.
 
 The model is a pinhole colour camera translated by ``baseline_m`` along the
-depth camera's x axis, with no rotation; ``fit_colour_camera`` finds it from
+depth camera's x axis and turned by ``roll_deg`` about its optical axis (a turn
+about the other two axes is, this close to the centre, a shift of the principal
+point, which the fit already has); ``fit_colour_camera`` finds it from
 the data by aligning colour edges with depth steps, so a number here always
 comes from a command (``rgb2cloud calibrate``).
 """
@@ -32,9 +34,12 @@ def colour_coordinates(depth: np.ndarray, depth_camera: Intrinsics, colour: Colo
     h, w = depth.shape
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
     z = np.where(depth > 0, depth, np.nan).astype(np.float64)
-    x3 = (u - depth_camera.cx) * z / depth_camera.fx - colour.baseline_m
-    y3 = (v - depth_camera.cy) * z / depth_camera.fy
-    return colour.fx * x3 / z + colour.cx, colour.fy * y3 / z + colour.cy, z
+    x = (u - depth_camera.cx) / depth_camera.fx - colour.baseline_m / z
+    y = (v - depth_camera.cy) / depth_camera.fy
+    if colour.roll_deg:
+        c, s = np.cos(np.radians(colour.roll_deg)), np.sin(np.radians(colour.roll_deg))
+        x, y = c * x - s * y, s * x + c * y
+    return colour.fx * x + colour.cx, colour.fy * y + colour.cy, z
 
 
 def depth_to_colour(depth: np.ndarray, depth_camera: Intrinsics, colour: ColourCamera) -> np.ndarray:
@@ -109,6 +114,7 @@ SEARCH_STEPS = {
     "cx": (8.0, 2.0, 0.5),
     "cy": (8.0, 2.0, 0.5),
     "baseline_m": (0.02, 0.005, 0.001),
+    "roll_deg": (0.5, 0.15, 0.05),
 }
 
 
@@ -116,8 +122,8 @@ def fit_colour_camera(frames: Sequence[Frame], start: ColourCamera) -> tuple[Col
     """The colour camera that best aligns colour edges with depth steps, and its alignment.
 
     A coordinate search from ``start``: for each step size, each parameter moves
-    by +-step while that helps. fy follows fx (square pixels), so four numbers
-    are fitted: the focal length, the principal point and the baseline.
+    by +-step while that helps. fy follows fx (square pixels), so five numbers
+    are fitted: the focal length, the principal point, the baseline and the roll.
     """
     best = start
     best_score = alignment(frames, best)

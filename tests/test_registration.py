@@ -55,6 +55,20 @@ def test_a_wider_colour_lens_draws_the_scene_smaller_about_its_centre():
     assert yc[59, 40] == pytest.approx(29.5 + 0.5 * 29.5)
 
 
+def test_a_roll_turns_the_image_about_the_principal_point():
+    # A quarter turn (x towards y) moves a point 19.5 px right of and 0.5 px above the centre
+    # to 19.5 px below and 0.5 px right of it.
+    xc, yc, _ = colour_coordinates(_box_scene(), DEPTH_CAMERA, _same_camera(roll_deg=90.0))
+    assert xc[29, 59] == pytest.approx(39.5 + 0.5) and yc[29, 59] == pytest.approx(29.5 + 19.5)
+    # Half a degree, the size Kinect v1 shows, moves a point 300 px from the centre by 2.6 px.
+    wide = Intrinsics(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480)
+    depth = np.full((480, 640), 2.0, dtype=np.float32)
+    colour = ColourCamera(fx=500.0, fy=500.0, cx=320.0, cy=240.0, roll_deg=0.5)
+    xc, yc, _ = colour_coordinates(depth, wide, colour)
+    assert yc[240, 620] - 240.0 == pytest.approx(300 * np.sin(np.radians(0.5)))
+    assert xc[240, 620] == pytest.approx(320.0 + 300 * np.cos(np.radians(0.5)))
+
+
 def test_registered_depth_moves_the_box_and_the_nearer_surface_wins():
     colour = _same_camera(baseline_m=0.04)
     registered = depth_to_colour(_box_scene(), DEPTH_CAMERA, colour)
@@ -96,7 +110,7 @@ def test_evaluation_reads_a_colour_frame_prediction_at_each_ground_truth_pixel()
 
 def test_the_fit_finds_a_colour_camera_from_edges_and_depth_steps():
     """Colour edges drawn by a known camera pair lead the fit from 'one camera' to that pair."""
-    truth = _same_camera(fx=92.0, fy=92.0, cx=36.0, baseline_m=0.02)
+    truth = _same_camera(fx=92.0, fy=92.0, cx=36.0, baseline_m=0.02, roll_deg=2.0)
     rng = np.random.default_rng(0)
     frames = []
     for _ in range(3):
@@ -112,6 +126,7 @@ def test_the_fit_finds_a_colour_camera_from_edges_and_depth_steps():
     fitted, score = fit_colour_camera(frames, start)
     assert score > alignment(frames, start)
     assert fitted.fy == fitted.fx
+    assert fitted.roll_deg == pytest.approx(truth.roll_deg, abs=0.5)
 
     # The principal point and the baseline trade off against each other; what matters is where
     # the pair puts each depth pixel in the photo. The fit misses the true place by about a pixel
