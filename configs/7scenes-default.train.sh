@@ -652,6 +652,9 @@ rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 "${REGISTERED_GR
 #     - Its refit is published as 0.7.0 only if also (3) it does not lose to 0.6.0 on the test split
 #       read through the refitted camera, REL and delta1. 0.6.0's test row is re-read through it once, for
 #       that gate and for the report, whatever it says; its step-19 reading stays beside it.
+#     - A published model's own row in the report and on its card stays as it was scored when published,
+#       through the camera it trained with (cards are not rewritten); a re-read through another camera is
+#       a compared row beside it (`rgb2cloud record`), as step 19 showed 0.5.0 both ways.
 #     The generator is unchanged, so the 300 ms and 20 MB limits hold as for 0.6.0. Either way the test
 #     split scores the refit once and the report shows it.
 #     The baseline, written before this step's runs were scored: step 19's last checkpoints re-read through
