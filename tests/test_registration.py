@@ -161,13 +161,19 @@ def test_colour_camera_resizes_with_its_images():
 
 
 def test_calibrate_fits_the_real_kinect_pair_better_than_one_camera():
-    stdout = run_cli("calibrate", str(SEVEN_SCENES), "--frames", "0-799", "--every", "400").stdout
+    same = "{fx: 585, fy: 585, cx: 320, cy: 240}"  # camera-intrinsics.txt: the depth camera's own
+    args = ("calibrate", str(SEVEN_SCENES), "--frames", "0-799", "--every", "400", "--compare", same)
+    stdout = run_cli(*args).stdout
     recorded = float(re.search(r"as recorded \(same camera\): ([\d.]+)", stdout).group(1))
     fitted = float(re.search(r"alignment fitted: ([\d.]+)", stdout).group(1))
     assert fitted > recorded
+    # --compare scores a given camera on the same frames: the depth camera itself scores as recorded.
+    compared = float(re.search(r"alignment of \{fx: 585[^}]*\}: ([\d.]+)", stdout).group(1))
+    assert compared == recorded
     camera = ColourCamera.model_validate(yaml.safe_load(stdout.strip().splitlines()[-1])["colour_camera"])
     # Kinect v1's colour lens sees wider than its depth lens: a shorter focal length than 585 px.
     assert 500 < camera.fx < 570
+    assert abs(camera.roll_deg) < 2.0  # two lenses on one bar: a fraction of a degree, not a tilted image
 
 
 def test_evaluate_refuses_a_malformed_colour_camera(tmp_path):
