@@ -182,8 +182,13 @@ class ColourCamera(_Strict):
         return Intrinsics(self.fx, self.fy, self.cx, self.cy, width, height)
 
     def flow(self) -> str:
-        """YAML flow, as a data source's ``colour_camera`` and ``evaluate --colour-camera`` take it."""
-        return "{" + ", ".join(f"{k}: {round(v, 4):g}" for k, v in self.model_dump().items()) + "}"
+        """YAML flow, as a data source's ``colour_camera`` and ``evaluate --colour-camera`` take it.
+
+        Offsets at their default (no baseline, no roll) are left out, so a camera fitted
+        before the roll existed prints as it did then and its commands stay the same.
+        """
+        fields = self.model_dump(exclude_defaults=True)
+        return "{" + ", ".join(f"{k}: {round(v, 4):g}" for k, v in fields.items()) + "}"
 
     def resized(self, scale: float) -> ColourCamera:
         """The same camera pair after both images are resized by ``scale`` (pixel-centre convention)."""
