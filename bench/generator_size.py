@@ -45,6 +45,14 @@ CONFIGS = [
         ["generator.dilations=[1, 2, 4, 8, 4, 2]", "generator.work_scale=1"],
     ),
     ("paper size: 32 filters, 4 downsamplings, 9 blocks, full resolution", "configs/7scenes-paper.yaml", []),
+    *(
+        (
+            f"bundled shape, its output refined by a colour-weighted median of {2 * r + 1}x{2 * r + 1} taps",
+            "configs/7scenes-default.yaml",
+            ["generator.dilations=[1, 2, 4, 8, 4, 2]", f"generator.median_radius={r}"],
+        )
+        for r in (1, 2)  # its cost depends on the taps only, not on their spacing or sigma
+    ),
 ]
 
 

@@ -102,6 +102,11 @@ class ModelCard(BaseModel):
     metrics: list[Metrics] = Field(min_length=1)
     trainer_commit: str
     parity: dict[str, float] = Field(default_factory=dict, description="export vs eager max abs diff")
+    derived_from: str | None = Field(
+        None,
+        description="the published version whose weights these are, exported again with other inference "
+        "settings (generator); its training is this card's training",
+    )
 
     @field_validator("name")
     @classmethod

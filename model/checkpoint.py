@@ -8,6 +8,7 @@ from typing import Any
 
 import torch
 
+from model.card import TORCHSCRIPT_FILE, load_card, verify_files
 from model.config import RunConfig
 from model.networks import GeneratorEnsemble, GlobalGenerator
 
@@ -27,25 +28,47 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     return torch.load(path, map_location="cpu", weights_only=True)
 
 
-def load_generator(path: Path, flip_average: bool | None = None) -> tuple[GlobalGenerator, RunConfig, dict[str, Any]]:
-    """The generator of a checkpoint, in eval mode, with the run config it was built from.
+def load_generator(
+    path: Path, run_as: dict[str, Any] | None = None
+) -> tuple[GlobalGenerator, RunConfig, dict[str, Any]]:
+    """The generator of a checkpoint or a published version, in eval mode, with its run config.
 
-    ``flip_average`` (None: as trained) changes only how the weights are run, so a
-    checkpoint can be scored and exported with or without it. A run with ``optim.ema``
-    is judged by its averaged weights, so those are the ones loaded; the raw weights
-    beside them only serve ``--resume``.
+    ``run_as`` changes its ``INFERENCE_ONLY`` settings (``GeneratorConfig.run_as``), so
+    trained weights can be scored and exported with another inference path. A run
+    with ``optim.ema`` is judged by its averaged weights, so those are the ones
+    loaded; the raw weights beside them only serve ``--resume``.
+
+    A published version folder (checked against its card) gives the weights in its
+    TorchScript file and a state rebuilt from its card, so a version whose training
+    checkpoint is gone can still be run another way and published again.
     """
-    state = load_checkpoint(path)
+    path = Path(path)
+    state = _published_state(path) if path.is_dir() else load_checkpoint(path)
     config = RunConfig.model_validate(state["config"])
-    if flip_average is not None:
-        config.generator = config.generator.model_copy(update={"flip_average": flip_average})
+    config.generator = state.get("generator_config", config.generator).run_as(run_as or {})
     generator = GlobalGenerator(config.generator)
     generator.load_state_dict(state.get("generator_ema", state["generator"]))  # strict: a config mismatch fails loudly
     return generator.eval(), config, state
 
 
+def _published_state(version_dir: Path) -> dict[str, Any]:
+    """What a checkpoint holds that a published version can give back: its weights and its training."""
+    card = load_card(version_dir)
+    verify_files(version_dir, card)
+    module = torch.jit.load(str(version_dir / TORCHSCRIPT_FILE), map_location="cpu")
+    return {
+        "generator": module.state_dict(),
+        "generator_config": card.generator,  # as exported, which may differ from training's in INFERENCE_ONLY
+        "config": card.training.config,
+        "step": card.training.steps,
+        "train_seconds": card.training.duration_s,
+        "hardware": card.training.hardware,
+        "published": f"{card.name} {card.version}",
+    }
+
+
 def load_ensemble(
-    paths: list[Path], flip_average: bool | None = None
+    paths: list[Path], run_as: dict[str, Any] | None = None
 ) -> tuple[GlobalGenerator | GeneratorEnsemble, RunConfig, list[dict[str, Any]]]:
     """One checkpoint's generator, or several averaged as one (``GeneratorEnsemble``).
 
@@ -54,7 +77,7 @@ def load_ensemble(
     """
     if not paths:
         raise ValueError("no checkpoint given")
-    loaded = [load_generator(p, flip_average) for p in paths]
+    loaded = [load_generator(p, run_as) for p in paths]
     generators, configs, states = zip(*loaded, strict=True)
     if len(loaded) == 1:
         return generators[0], configs[0], list(states)

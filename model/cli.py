@@ -15,6 +15,33 @@ import typer
 if TYPE_CHECKING:
     from model.config import ColourCamera
 
+# Inference settings: how trained weights are run (``GeneratorConfig.run_as``); unset keeps the model's own.
+FlipAverage = Annotated[
+    bool | None, typer.Option(help="also run the mirrored image and average (default: as the model has it)")
+]
+MedianRadius = Annotated[
+    int | None,
+    typer.Option(
+        help="refine the network's output by a colour-weighted median over (2r+1)^2 taps, guided by the photo "
+        "(0: off; default: as the model has it)"
+    ),
+]
+MedianSigma = Annotated[float | None, typer.Option(help="the median's colour scale, in the input's [-1, 1] units")]
+MedianSpacing = Annotated[int | None, typer.Option(help="pixels between the median's taps, at the working scale")]
+
+
+def _run_as(
+    flip_average: bool | None, median_radius: int | None, median_sigma: float | None, median_spacing: int | None
+) -> dict:
+    given = {
+        "flip_average": flip_average,
+        "median_radius": median_radius,
+        "median_sigma": median_sigma,
+        "median_spacing": median_spacing,
+    }
+    return {key: value for key, value in given.items() if value is not None}
+
+
 app = typer.Typer(help="rgb2cloud: metric depth and point clouds from one RGB image.", no_args_is_help=True)
 
 
@@ -52,10 +79,10 @@ def evaluate(
     min_depth: Annotated[float, typer.Option(help="valid ground truth from (m)")] = 0.1,
     max_depth: Annotated[float, typer.Option(help="valid ground truth up to (m)")] = 10.0,
     samples: Annotated[int, typer.Option(help="rows in samples.png")] = 4,
-    flip_average: Annotated[
-        bool | None,
-        typer.Option(help="checkpoints: also run the mirrored image and average (default: as trained)"),
-    ] = None,
+    flip_average: FlipAverage = None,
+    median_radius: MedianRadius = None,
+    median_sigma: MedianSigma = None,
+    median_spacing: MedianSpacing = None,
     median_scaled: Annotated[
         bool,
         typer.Option(
@@ -87,7 +114,7 @@ def evaluate(
     from model.failures import where_fails_line
 
     colour = parse_colour_camera(colour_camera) if colour_camera else None
-    predict, label = load_predictor(model, flip_average)
+    predict, label = load_predictor(model, _run_as(flip_average, median_radius, median_sigma, median_spacing))
     source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file)
     result, per_image, grid = evaluate_frames(
         predict,
@@ -127,22 +154,30 @@ def evaluate(
 
 @app.command()
 def export(
-    checkpoint: Annotated[Path, typer.Argument(help="a training checkpoint (.pt)", exists=True, dir_okay=False)],
+    checkpoint: Annotated[
+        Path,
+        typer.Argument(
+            help="a training checkpoint (.pt), or a published version folder: its weights again, with other "
+            "inference settings",
+            exists=True,
+        ),
+    ],
     name: Annotated[str, typer.Option(help="model name in the registry")],
     version: Annotated[str, typer.Option(help="semantic version, e.g. 0.1.0; never reused")],
     metrics: Annotated[list[Path], typer.Option(help="metrics.json from evaluate (repeatable)", exists=True)],
     parity_image: Annotated[Path, typer.Option(help="a real RGB image for the parity check", exists=True)],
     registry: Annotated[Path, typer.Option(help="registry folder")] = Path("weights"),
-    flip_average: Annotated[
-        bool | None,
-        typer.Option(help="also run the mirrored image and average (default: as trained)"),
-    ] = None,
+    flip_average: FlipAverage = None,
+    median_radius: MedianRadius = None,
+    median_sigma: MedianSigma = None,
+    median_spacing: MedianSpacing = None,
 ) -> None:
     """Export ONNX + TorchScript, check parity with eager PyTorch, publish a version."""
     from model.card import load_card
     from model.export import export_and_publish
 
-    target = export_and_publish(checkpoint, registry, name, version, metrics, parity_image, flip_average)
+    run_as = _run_as(flip_average, median_radius, median_sigma, median_spacing)
+    target = export_and_publish(checkpoint, registry, name, version, metrics, parity_image, run_as)
     card = load_card(target)
     for file_name, digest in card.files.items():
         typer.echo(f"{file_name}  sha256 {digest}")

@@ -22,6 +22,10 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+#: The generator settings that only say how trained weights are run (``GeneratorConfig.run_as``).
+INFERENCE_ONLY = ("flip_average", "median_radius", "median_sigma", "median_spacing")
+
+
 class GeneratorConfig(_Strict):
     """pix2pixHD global generator. The paper: 32 filters in the first layer."""
 
@@ -65,6 +69,27 @@ class GeneratorConfig(_Strict):
         description="beyond the paper, inference only: also run the mirrored image and average the two "
         "depths (test-time augmentation); twice the compute, the same weights",
     )
+    median_radius: int = Field(
+        0,
+        ge=0,
+        le=3,
+        description="beyond the paper, inference only: give each pixel of the network's output (at its "
+        "working scale) the colour-weighted median of the depths in its (2r+1)^2-tap window (model.refine), "
+        "so a blurred depth step takes the depth of the side whose colour it shares; 0 = off",
+    )
+    median_sigma: float = Field(
+        0.1,
+        gt=0,
+        description="the colour-weighted median's colour scale, in the input's [-1, 1] units: a neighbour "
+        "whose RGB differs by sigma weighs exp(-1/2) of one with the pixel's own colour",
+    )
+    median_spacing: int = Field(
+        1,
+        ge=1,
+        le=4,
+        description="pixels (at the working scale) between the colour-weighted median's taps: 2 reaches twice "
+        "as far at the same cost",
+    )
 
     @model_validator(mode="after")
     def _one_dilation_per_block(self) -> GeneratorConfig:
@@ -73,6 +98,19 @@ class GeneratorConfig(_Strict):
                 f"dilations needs one value >= 1 per residual block ({self.n_blocks}), got {self.dilations}"
             )
         return self
+
+    def run_as(self, overrides: dict[str, Any]) -> GeneratorConfig:
+        """This config with some of its ``INFERENCE_ONLY`` settings changed, validated.
+
+        These change how trained weights are run, never which weights there are, so
+        ``evaluate`` and ``export`` may set them on any checkpoint or published version.
+        """
+        other = set(overrides) - set(INFERENCE_ONLY)
+        if other:
+            raise ValueError(
+                f"{sorted(other)} shape the weights; only {list(INFERENCE_ONLY)} can change after training"
+            )
+        return GeneratorConfig.model_validate({**self.model_dump(), **overrides})
 
     @property
     def core_multiple(self) -> int:

@@ -10,13 +10,14 @@ from __future__ import annotations
 import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
 from model.card import ONNX_FILE, load_card, verify_files
 from model.checkpoint import load_ensemble
-from model.config import ColourCamera
+from model.config import ColourCamera, GeneratorConfig
 from model.data.frames import Frame
 from model.data.transforms import resize_frame
 from model.failures import FailureAccumulator
@@ -106,36 +107,47 @@ def evaluate_frames(
 
 
 def load_predictor(
-    paths: Sequence[Path], flip_average: bool | None = None
+    paths: Sequence[Path], run_as: dict[str, Any] | None = None
 ) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
     """A depth predictor and a label from checkpoints (.pt) or one published version folder.
 
-    A version folder is checked against its card (sha256) and run the way the
-    service runs it: ONNX Runtime, then the card's depth encoding. Its flip
-    average is baked into the exported graph, so ``flip_average`` applies to
-    checkpoints only (None: as trained). Several checkpoints run as one
-    ``GeneratorEnsemble``, the mean of their outputs.
+    A version folder is checked against its card (sha256) and, as exported, run the
+    way the service runs it: ONNX Runtime, then the card's depth encoding. With
+    ``run_as`` (``GeneratorConfig.run_as``: other inference settings for the same
+    weights) a version runs eagerly from its TorchScript weights instead, as a
+    checkpoint does. Several checkpoints run as one ``GeneratorEnsemble``, the mean
+    of their outputs.
     """
     paths = [Path(p) for p in paths]
-    if any(p.is_dir() for p in paths):
-        if len(paths) > 1:
-            raise ValueError(f"{paths}: a published version folder is scored alone, not averaged with others")
-        path = paths[0]
-        if flip_average is not None:
-            raise ValueError(f"{path}: a published version runs as exported; flip averaging is set at export")
-        card = load_card(path)
-        verify_files(path, card)
-        runner = OnnxGenerator(path / ONNX_FILE, card.input_multiple)
+    if any(p.is_dir() for p in paths) and len(paths) > 1:
+        raise ValueError(f"{paths}: a published version folder is scored alone, not averaged with others")
+    if paths[0].is_dir() and not run_as:
+        card = load_card(paths[0])
+        verify_files(paths[0], card)
+        runner = OnnxGenerator(paths[0] / ONNX_FILE, card.input_multiple)
         return (lambda rgb: card.depth_encoding.decode(runner.predict_raw(rgb))), f"{card.name} {card.version} (ONNX)"
-    generator, config, states = load_ensemble(paths, flip_average)
+    generator, config, states = load_ensemble(paths, run_as)
     runner = TorchModuleGenerator(generator, config.generator.input_multiple)
-    flip = ", flip-averaged" if config.generator.flip_average else ""
-    if len(paths) == 1:
-        label = f"rgb2cloud ({paths[0].name}, step {states[0]['step']}{flip})"
+    how = inference_words(config.generator)
+    if "published" in states[0]:
+        label = f"{states[0]['published']} (eager{how})"
+    elif len(paths) == 1:
+        label = f"rgb2cloud ({paths[0].name}, step {states[0]['step']}{how})"
     else:
         members = "; ".join(f"{_run_name(p)} step {s['step']}" for p, s in zip(paths, states, strict=True))
-        label = f"rgb2cloud (mean of {members}{flip})"
+        label = f"rgb2cloud (mean of {members}{how})"
     return (lambda rgb: config.depth.decode(runner.predict_raw(rgb))), label
+
+
+def inference_words(g: GeneratorConfig) -> str:
+    """The inference settings beyond the plain network, as a label's tail (empty when none)."""
+    words = ""
+    if g.flip_average:
+        words += ", flip-averaged"
+    if g.median_radius:
+        taps = 2 * g.median_radius + 1
+        words += f", colour-weighted median {taps}x{taps} taps {g.median_spacing} px apart, sigma {g.median_sigma:g}"
+    return words
 
 
 def _run_name(checkpoint: Path) -> str:

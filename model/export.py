@@ -16,6 +16,7 @@ import tempfile
 import warnings
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -136,17 +137,19 @@ def export_and_publish(
     version: str,
     metrics_files: list[Path],
     parity_image: Path,
-    flip_average: bool | None = None,
+    run_as: dict[str, Any] | None = None,
 ) -> Path:
     """Export, check parity, and publish ``<registry>/<name>/<version>/`` with its card.
 
-    ``flip_average`` (None: as trained) is baked into the exported graph and
-    recorded in the card's generator config.
+    ``checkpoint`` is a training checkpoint or a published version folder (its
+    weights, published again). ``run_as`` (``GeneratorConfig.run_as``) is baked
+    into the exported graph and recorded in the card's generator config; a card
+    from a published version also names it in ``derived_from``.
     """
     target = Path(registry) / name / version
     if target.exists():
         raise FileExistsError(f"{target} already exists: versions are immutable, publish a new one")
-    generator, config, state = load_generator(checkpoint, flip_average)
+    generator, config, state = load_generator(checkpoint, run_as)
     readers = [open_source(s) for s in config.data.train]
     data = []
     for source, reader in zip(config.data.train, readers, strict=True):
@@ -189,5 +192,6 @@ def export_and_publish(
             metrics=[metrics_from_report(p) for p in metrics_files],
             trainer_commit=trainer_commit(),
             parity=parity,
+            derived_from=state.get("published"),
         )
         return publish(registry, card, {ONNX_FILE: folder / ONNX_FILE, TORCHSCRIPT_FILE: folder / TORCHSCRIPT_FILE})

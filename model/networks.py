@@ -9,6 +9,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from model.config import DiscriminatorConfig, GeneratorConfig
+from model.refine import ColourWeightedMedian
 
 
 def _norm(channels: int) -> nn.Module:
@@ -95,8 +96,16 @@ class GlobalGenerator(nn.Module):
     With ``flip_average`` the full-size path also predicts the left-right mirror
     and averages it back in (test-time augmentation): the same weights, a second
     pass. Whether it helps depends on the data, so measure it on validation frames
-    (on 7-Scenes it did not; see the README). Training never takes this path; it
-    lives in the graph so that every exported file carries it.
+    (on 7-Scenes it did not; see the README).
+
+    With ``median_radius`` the network's output goes through
+    ``model.refine.ColourWeightedMedian``, guided by the photo at the same scale,
+    before it is upsampled: that is the grid the network blurs on, and at
+    work_scale 2 it is a quarter of the pixels, which is what keeps the filter's
+    cost (a sorting network per pixel) well inside the 300 ms budget.
+
+    Training never takes these paths; they live in the graph so that every
+    exported file carries them.
     """
 
     save_after: list[int]  # class-level, so TorchScript types them even when empty
@@ -107,6 +116,7 @@ class GlobalGenerator(nn.Module):
         self.config = config
         self.work_scale = config.work_scale  # plain values, so TorchScript can read them
         self.flip_average = config.flip_average
+        self.median = ColourWeightedMedian(config.median_radius, config.median_sigma, config.median_spacing)
         ngf = config.ngf
         layers: list[nn.Module] = [
             nn.ReflectionPad2d(3),
@@ -154,8 +164,9 @@ class GlobalGenerator(nn.Module):
     def _full_size(self, x: torch.Tensor) -> torch.Tensor:
         k = self.work_scale
         if k == 1:
-            return self._core(x)
-        y = self._core(F.avg_pool2d(x, k))
+            return self.median(self._core(x), x)
+        small = F.avg_pool2d(x, k)
+        y = self.median(self._core(small), small)
         return F.interpolate(y, scale_factor=float(k), mode="bilinear", align_corners=False)
 
     def _core(self, x: torch.Tensor) -> torch.Tensor:

@@ -67,7 +67,7 @@ def training_config(path: Path) -> dict:
     """The complete run config a checkpoint or a published version was trained with.
 
     A version's generator entry is the one it was exported with, so that how it
-    runs (the flip average) shows in the ablation beside how it was trained.
+    runs (its inference settings) shows in the ablation beside how it was trained.
     """
     if path.is_dir():
         card = load_card(path)
@@ -286,7 +286,22 @@ def _generator_shape(g: GeneratorConfig) -> str:
     parts.append(f"working scale 1/{g.work_scale} of the input")
     if g.flip_average:
         parts.append("mirror-averaged at inference")
+    if g.median_radius:
+        taps = 2 * g.median_radius + 1
+        parts.append(
+            f"its output refined at inference by a colour-weighted median ({taps}x{taps} taps "
+            f"{g.median_spacing} px apart, sigma {g.median_sigma:g})"
+        )
     return ", ".join(parts)
+
+
+def inference_flags(g: GeneratorConfig) -> str:
+    """The ``evaluate`` / ``export`` options that run a checkpoint the way this generator config does."""
+    flags = " --flip-average" if g.flip_average else ""
+    if g.median_radius:
+        flags += f" --median-radius {g.median_radius} --median-sigma {g.median_sigma:g}"
+        flags += f" --median-spacing {g.median_spacing}"
+    return flags
 
 
 def _card_section(card: ModelCard, model_dir: Path) -> list[str]:
@@ -311,7 +326,7 @@ def build_report(inputs: ReportInputs) -> Path:
     local.mkdir(parents=True, exist_ok=True)
     card = load_card(inputs.model)
     run = card.training.config["train"]["out_dir"]  # the run folder its checkpoint came from
-    flip = " --flip-average" if card.generator.flip_average else ""  # how it was evaluated and exported
+    how = inference_flags(card.generator)  # how it was evaluated and exported
     checkpoint = published_checkpoint(card.training.config)
     predict, label = load_predictor([inputs.model])
     test = SevenScenesReader(inputs.root, inputs.test_frames)
@@ -457,9 +472,9 @@ def build_report(inputs: ReportInputs) -> Path:
         *_recipe_section(inputs.recipe),
         "```sh",
         f"rgb2cloud evaluate {checkpoint} --format 7scenes --root {inputs.root} "
-        f"--frames {inputs.test_frames} --out {run}/eval-test{flip}{colour_camera_flag(colour)}",
-        f"rgb2cloud evaluate {checkpoint} --format csv --root {inputs.unseen} --out {run}/eval-unseen{flip}",
-        f"rgb2cloud export {checkpoint} --name {card.name} --version {card.version}{flip} "
+        f"--frames {inputs.test_frames} --out {run}/eval-test{how}{colour_camera_flag(colour)}",
+        f"rgb2cloud evaluate {checkpoint} --format csv --root {inputs.unseen} --out {run}/eval-unseen{how}",
+        f"rgb2cloud export {checkpoint} --name {card.name} --version {card.version}{how} "
         f"--metrics {run}/eval-test/metrics.json --metrics {run}/eval-unseen/metrics.json "
         f"--parity-image {os.path.normpath(unseen.path.parent / unseen.rows[0][0])}",
         f"rgb2cloud baselines --format 7scenes --root {inputs.root} --train-frames {inputs.train_frames} "

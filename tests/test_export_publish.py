@@ -137,6 +137,44 @@ def test_a_flip_averaged_export_is_mirror_equivariant_and_says_so(trained_checkp
     ]
 
 
+def test_a_published_version_runs_and_publishes_again_with_a_colour_weighted_median(
+    trained_checkpoint, evaluated, tmp_path
+):
+    """A version whose checkpoint is gone: its TorchScript weights run with a median, then publish as a new one."""
+    out, _ = evaluated
+    run_cli(*export_args(trained_checkpoint, out / "metrics.json", tmp_path))
+    source = tmp_path / "tiny" / "0.1.0"
+    median = ["--median-radius", "1", "--median-sigma", "0.2", "--median-spacing", "2"]
+    stdout = evaluate_cli(source, tmp_path / "eval-source", "850-851", *median).stdout
+    assert "tiny 0.1.0 (eager, colour-weighted median 3x3 taps 2 px apart, sigma 0.2)" in stdout
+    evaluate_cli(trained_checkpoint, tmp_path / "eval-checkpoint", "850-851", *median)
+    from_source, from_checkpoint = (
+        json.loads((tmp_path / name / "metrics.json").read_text())["metrics"]
+        for name in ("eval-source", "eval-checkpoint")
+    )
+    assert from_source == from_checkpoint  # the same weights, run the same way
+    plain = json.loads((out / "metrics.json").read_text())["metrics"]
+    assert from_source["rel"] != plain["rel"]
+
+    args = export_args(source, tmp_path / "eval-source" / "metrics.json", tmp_path)
+    args[args.index("0.1.0")] = "0.2.0"
+    assert "parity onnx@" in run_cli(*args, *median).stdout
+    derived, original = load_card(tmp_path / "tiny" / "0.2.0"), load_card(source)
+    assert derived.derived_from == "tiny 0.1.0" and original.derived_from is None
+    assert derived.training == original.training and derived.camera == original.camera
+    settings = {"median_radius": 1, "median_sigma": 0.2, "median_spacing": 2}
+    assert derived.generator == original.generator.run_as(settings)
+    evaluate_cli(tmp_path / "tiny" / "0.2.0", tmp_path / "eval-derived", "850-851")
+    onnx_metrics = json.loads((tmp_path / "eval-derived" / "metrics.json").read_text())["metrics"]
+    for key in ("rel", "rmse", "delta1", "pc_rmse_mean"):
+        assert abs(onnx_metrics[key] - from_source[key]) < 1e-4
+    assert config_diff(training_config(tmp_path / "tiny" / "0.2.0"), training_config(source)) == [
+        "`generator.median_radius`: 1 → 0",
+        "`generator.median_sigma`: 0.2 → 0.1",
+        "`generator.median_spacing`: 2 → 1",
+    ]
+
+
 def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_checkpoint, evaluated, tmp_path):
     out, _ = evaluated
     args = export_args(trained_checkpoint, out / "metrics.json", tmp_path / "registry")
