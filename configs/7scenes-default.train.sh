@@ -4,8 +4,9 @@
 # configs/7scenes-default.yaml is the recipe that steps 1-8 start from: 0.3.0 trained it on frames
 # 0-759, and 0.4.0 is the same recipe refit on the whole train split, 0-799 (step 8). Then
 # 0.5.0 adds dilated residual blocks (-s 'generator.dilations=[1, 2, 4, 8, 4, 2]') and is refit the
-# same way (step 9). The published 0.6.0 is 0.5.0's recipe trained on depth registered to the colour
-# camera (step 19). Runs with -s generator.dropout=0 predate the dropout.
+# same way (step 9). 0.6.0 is 0.5.0's recipe trained on depth registered to the colour camera (step 19),
+# and the published 0.7.0 is 0.6.0's weights with a colour-weighted median at inference (step 22). Runs
+# with -s generator.dropout=0 predate the dropout.
 set -eu
 
 # The unseen TUM frame that the evaluation commands after this script score is read in place
@@ -741,6 +742,58 @@ rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s
 #         --median-scaled --where-fails --colour-camera "$REFITTED" --median-radius R --median-sigma SIGMA \
 #         --median-spacing P --out runs/fold$C-registered/eval-median-R-SIGMA-P
 #   and the baseline, the same without the --median options, into runs/fold$C-registered/eval-val-refitted.
+# Outcome (`rgb2cloud evaluate --colour-camera "$REFITTED"` of the last checkpoints on each fold's validation
+# frames, full 640x480, with --median-scaled --where-fails; the two fold runs took about 78 min side by side,
+# the grid about 6 min): the rule keeps the median and the gate lets it through, so 0.6.0's weights with it
+# are published as 0.7.0. The fold runs did not reproduce step 19's checkpoints: without the median they
+# score REL 0.2007 on fold A (step 19's, re-read: 0.1997) and 0.0884 on fold B (0.0744), from the same
+# commands; that is run-to-run spread of step 12's size. Its cause is not established (one candidate:
+# step 21 rewrote the projection the data loader registers depth with, equal to about 1e-15, and a GAN's
+# training need not keep such differences small). These checkpoints are the baseline, as pre-registered.
+# `python bench/generator_size.py`: the bundled shape 45 ms, with the median's 3x3 taps 73 ms, with 5x5
+# taps 176 ms (docs/benchmarks-generators.md), so both radii take part.
+# The grid, REL on fold A / fold B and their mean (delta1 A / B):
+#   without the median                  0.2007 / 0.0884, mean 0.1446 (0.7195 / 0.9759)
+#   radius 1, every setting             0.2003-0.2006 / 0.0879-0.0882, mean 0.1441-0.1444
+#   radius 2, spacing 1, every sigma    0.2003-0.2004 / 0.0878-0.0879, mean 0.1441-0.1442
+#   radius 2, spacing 2, sigma 0.05     0.2000 / 0.0875, mean 0.1438 (0.7223 / 0.9784)
+#   radius 2, spacing 2, sigma 0.1      0.1999 / 0.0871, mean 0.1435 (0.7229 / 0.9798)
+#   radius 2, spacing 2, sigma 0.2      0.1998 / 0.0869, mean 0.1433 (0.7229 / 0.9804)   <- chosen
+# Every one of the 12 settings is better than none on both folds; the widest reach and the loosest colour
+# scale do best, at the edge of the grid. The chosen one: (1) REL 0.2007 -> 0.1998 on fold A and
+# 0.0884 -> 0.0869 on fold B; (2) delta1 0.7195 -> 0.7229 and 0.9759 -> 0.9804. Kept. What it did: on fold B
+# the pixels beside depth steps fail at 32.1% instead of 38.3% and the rest at 0.9% instead of 1.1%; on fold A
+# 53.9% instead of 58.1%. It leaves each view's distance alone (fold A's median ratio 0.843 +- 0.027, before
+# 0.844), so fold A's main error, views seen about 19% too far, is untouched.
+# (3) The test split, scored once, 0.6.0 with the median read through the refitted camera: REL 0.0950, RMSE
+# 0.275, log10 0.043, delta1 0.9414, delta2 0.990, delta3 0.998, PC RMSE 0.295, against 0.6.0's 0.096 / 0.939
+# (step 21): the gate holds. Beside depth steps (3.2% of the test pixels) 35.6% fail, the rest 4.6%.
+# So 0.7.0 is published: 0.6.0's weights, loaded from its TorchScript file, exported with the median in the
+# graph (its card's derived_from says so); its files total 16.8 MB and 0.6.0 left weights/ (git history has
+# it). Its card and report row read it through step 19's camera, as 0.6.0's were: REL 0.0948, RMSE 0.275,
+# log10 0.043, delta1 0.9417, delta2 0.990, delta3 0.998, PC RMSE 0.296 (0.6.0: 0.096, 0.279, 0.044, 0.940,
+# 0.989, 0.998, 0.300); TUM frame delta1 0.41 (0.6.0: 0.41). delta1 0.9417 rounds to the paper's 0.942 but
+# does not beat it: 0.7.0 beats the paper's Table 2 on five of six metrics, as 0.6.0 did, and misses delta1
+# by 0.0003 instead of 0.002.
+# The commands (R, C and REFITTED as in steps 19 and 21; M='--median-radius 2 --median-sigma 0.2 --median-spacing 2'):
+#   python bench/generator_size.py --threads 2 --repeats 10 --markdown docs/benchmarks-generators.md
+#   the grid and baselines above, then:
+#   rgb2cloud evaluate weights/rgb2cloud-7scenes/0.6.0 --format 7scenes --root $R --frames 850-999 \
+#       --median-scaled --where-fails --colour-camera "$REFITTED" $M --out runs/median-0.6.0/eval-test-refitted
+#   rgb2cloud evaluate weights/rgb2cloud-7scenes/0.6.0 --format 7scenes --root $R --frames 850-999 \
+#       --median-scaled --colour-camera "$C" $M --out runs/median-0.6.0/eval-test
+#   rgb2cloud evaluate weights/rgb2cloud-7scenes/0.6.0 --format csv --root runs/tum-fr3-office.csv \
+#       --median-scaled $M --out runs/median-0.6.0/eval-unseen
+#   rgb2cloud export weights/rgb2cloud-7scenes/0.6.0 --name rgb2cloud-7scenes --version 0.7.0 $M \
+#       --metrics runs/median-0.6.0/eval-test/metrics.json --metrics runs/median-0.6.0/eval-unseen/metrics.json \
+#       --parity-image ../shared/data/tum-fr3-office/TUM_color.png --registry weights
+#   Before 0.6.0 left weights/, its own row was scored again for the report (`rgb2cloud evaluate
+#   weights/rgb2cloud-7scenes/0.6.0 ... --colour-camera "$C" --out runs/published-0.6.0/eval-test`, and
+#   the TUM frame into runs/published-0.6.0/eval-unseen) and stored with `rgb2cloud record "rgb2cloud-7scenes
+#   0.6.0, the previous default: the same weights without the median" ...`; the gate's reading is stored as
+#   "0.7.0 read through step 21's refitted camera (with a roll; step 22's gate)" from
+#   runs/median-0.6.0/eval-test-refitted and eval-unseen, with step 19's refit config plus
+#   -s generator.median_radius=2 -s generator.median_sigma=0.2 -s generator.median_spacing=2.
 
 # GPU. Beside the steps, on a leased GPU (issue 4, item 3): the paper's own size and objective,
 #      configs/7scenes-paper.yaml (32 filters, 4 downsamplings, 9 residual blocks, cGAN + 10 x FM only,
