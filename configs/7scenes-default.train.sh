@@ -5,8 +5,9 @@
 # 0-759, and 0.4.0 is the same recipe refit on the whole train split, 0-799 (step 8). Then
 # 0.5.0 adds dilated residual blocks (-s 'generator.dilations=[1, 2, 4, 8, 4, 2]') and is refit the
 # same way (step 9). 0.6.0 is 0.5.0's recipe trained on depth registered to the colour camera (step 19),
-# and the published 0.7.0 is 0.6.0's weights with a colour-weighted median at inference (step 22). Runs
-# with -s generator.dropout=0 predate the dropout.
+# 0.7.0 is 0.6.0's weights with a colour-weighted median at inference (step 22), and the published 0.8.0
+# is the same with the median's taps farther apart (step 23). Runs with -s generator.dropout=0 predate
+# the dropout.
 set -eu
 
 # The unseen TUM frame that the evaluation commands after this script score is read in place
@@ -811,6 +812,40 @@ rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s
 #       as 0.7.0's. If none is kept, the test split is not scored again and 0.7.0 stays.
 #   The grid: step 22's scoring command for fold A (720-799) and fold B (220-299) with --median-radius 2
 #   --median-sigma SIGMA --median-spacing P, into runs/fold$C-registered/eval-median-2-SIGMA-P.
+# Outcome (the same scoring as step 22; the 11 new settings took about 10 min, beside a CI run): the rule
+# keeps spacing 4, sigma 0.2 and the gate lets it through, so 0.8.0 is published. REL on fold A / fold B and their mean (delta1 A / B):
+#   step 22's setting, spacing 2, sigma 0.2      0.1998 / 0.0869, mean 0.1433 (0.7229 / 0.9804)
+#   spacing 2, sigma 0.35 / 0.5 / 1.0            means 0.1435 / 0.1436 / 0.1441
+#   spacing 3, sigma 0.2 / 0.35 / 0.5 / 1.0      means 0.1428 / 0.1429 / 0.1432 / 0.1439
+#   spacing 4, sigma 0.2                         0.1990 / 0.0859, mean 0.1425 (0.7283 / 0.9828)   <- chosen
+#   spacing 4, sigma 0.35 / 0.5 / 1.0            means 0.1428 / 0.1432 / 0.1441
+# sigma 0.2 is best at every spacing, and a wider reach keeps helping up to 4, the widest the config allows
+# (reach 8 working-scale pixels, 16 in the photo). (1) REL 0.1998 -> 0.1990 and 0.0869 -> 0.0859; (2) delta1
+# 0.7229 -> 0.7283 and 0.9804 -> 0.9828: kept. On fold B the pixels beside depth steps now fail at 29.8%
+# (no median: 38.3%; step 22: 32.1%).
+# (3) The test split, scored once, read through the refitted camera: REL 0.0946, RMSE 0.272, log10 0.043,
+# delta1 0.9431, delta2 0.990, delta3 0.998, PC RMSE 0.292, against 0.7.0's 0.0950 / 0.9414: the gate holds.
+# Beside depth steps 33.2% of the pixels fail (0.7.0: 35.6%), the rest 4.5%.
+# So 0.8.0 is published: the same weights (0.6.0's, loaded from 0.7.0's TorchScript file), the median's taps
+# 4 px apart; its files total 16.8 MB and run at the same cost as 0.7.0's, and 0.7.0 left weights/ (git
+# history has it). Its card and report row, read through step 19's camera as 0.6.0's and 0.7.0's were: REL
+# 0.0946, RMSE 0.274, log10 0.043, delta1 0.9428, delta2 0.990, delta3 0.998, PC RMSE 0.294; TUM frame delta1
+# 0.41. **It beats the paper's Table 2 on all six metrics**, delta1 by 0.0008; the aims (delta1 >= 0.97,
+# REL <= 0.06) are still far off.
+# The commands (R, C and REFITTED as in steps 19 and 21; M='--median-radius 2 --median-sigma 0.2 --median-spacing 4'):
+#   rgb2cloud evaluate weights/rgb2cloud-7scenes/0.7.0 --format 7scenes --root $R --frames 850-999 \
+#       --median-scaled --where-fails --colour-camera "$REFITTED" $M --out runs/median4/eval-test-refitted
+#   rgb2cloud evaluate weights/rgb2cloud-7scenes/0.7.0 --format 7scenes --root $R --frames 850-999 \
+#       --median-scaled --colour-camera "$C" $M --out runs/median4/eval-test
+#   rgb2cloud evaluate weights/rgb2cloud-7scenes/0.7.0 --format csv --root runs/tum-fr3-office.csv \
+#       --median-scaled $M --out runs/median4/eval-unseen
+#   rgb2cloud export weights/rgb2cloud-7scenes/0.7.0 --name rgb2cloud-7scenes --version 0.8.0 $M \
+#       --metrics runs/median4/eval-test/metrics.json --metrics runs/median4/eval-unseen/metrics.json \
+#       --parity-image ../shared/data/tum-fr3-office/TUM_color.png --registry weights
+#   0.7.0's own row, scored through ONNX before it left weights/ (`rgb2cloud evaluate weights/rgb2cloud-7scenes/0.7.0
+#   ... --colour-camera "$C" --out runs/published-0.7.0/eval-test`, and the TUM frame into eval-unseen), and the
+#   gate's reading are stored with `rgb2cloud record` as in step 22 (config: step 19's refit plus the median's
+#   three -s generator.median_* settings).
 
 # GPU. Beside the steps, on a leased GPU (issue 4, item 3): the paper's own size and objective,
 #      configs/7scenes-paper.yaml (32 filters, 4 downsamplings, 9 residual blocks, cGAN + 10 x FM only,
