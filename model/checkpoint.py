@@ -1,4 +1,8 @@
-"""Checkpoints: everything a run needs to continue exactly, written atomically."""
+"""Checkpoints: everything a run needs to continue exactly, written atomically.
+
+Loading a generator also takes a published version folder, whose TorchScript
+weights and card stand in for a checkpoint that may no longer exist.
+"""
 
 from __future__ import annotations
 
