@@ -33,7 +33,7 @@ from model.config import ColourCamera, GeneratorConfig, complete_config
 from model.data.frames import Frame
 from model.data.manifest import ManifestReader
 from model.data.sevenscenes import SevenScenesReader
-from model.evaluate import PAPER_TUM, beats, evaluate_frames, load_predictor, markdown_table
+from model.evaluate import PAPER_TUM, beats, evaluate_frames, inference_words, load_predictor, markdown_table
 from model.geometry import colours, point_cloud, xyz
 from model.metrics import METRIC_NAMES
 from model.novelty import read_poses, view_novelty
@@ -285,15 +285,7 @@ def _generator_shape(g: GeneratorConfig) -> str:
     if g.global_offset:
         parts.append("a per-image depth offset pooled from the bottleneck")
     parts.append(f"working scale 1/{g.work_scale} of the input")
-    if g.flip_average:
-        parts.append("mirror-averaged at inference")
-    if g.median_radius:
-        taps = 2 * g.median_radius + 1
-        parts.append(
-            f"its output refined at inference by a colour-weighted median ({taps}x{taps} taps "
-            f"{g.median_spacing} px apart, sigma {g.median_sigma:g})"
-        )
-    return ", ".join(parts)
+    return ", ".join(parts) + inference_words(g)
 
 
 def inference_flags(g: GeneratorConfig) -> str:

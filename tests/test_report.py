@@ -235,10 +235,11 @@ def test_the_generator_line_names_every_option_that_changes_the_output():
     assert _generator_shape(plain) == "16 filters, 3 downsamplings, 2 residual blocks, working scale 1/2 of the input"
     assert _generator_shape(plain.model_copy(update={"dilations": [1, 1]})) == _generator_shape(plain)
     full = plain.model_copy(update={"dilations": [1, 4], "skips": True, "global_offset": True, "flip_average": True})
+    full = full.run_as({"median_radius": 2, "median_sigma": 0.2, "median_spacing": 4})
     assert _generator_shape(full) == (
         "16 filters, 3 downsamplings, 2 residual blocks (first convolutions dilated 1, 4), U-Net skips, "
         "a per-image depth offset pooled from the bottleneck, working scale 1/2 of the input, "
-        "mirror-averaged at inference"
+        "flip-averaged, colour-weighted median 5x5 taps 4 px apart, sigma 0.2"
     )
 
 
