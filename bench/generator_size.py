@@ -53,6 +53,15 @@ CONFIGS = [
         )
         for r in (1, 2)  # its cost depends on the taps only, not on their spacing or sigma
     ),
+    (
+        "bundled shape, 5x5-tap median, then colour-guided upsampling",
+        "configs/7scenes-default.yaml",
+        [
+            "generator.dilations=[1, 2, 4, 8, 4, 2]",
+            "generator.median_radius=2",
+            "generator.upsample_sigma=0.2",  # any sigma > 0 turns it on; its cost does not depend on it
+        ],
+    ),
 ]
 
 

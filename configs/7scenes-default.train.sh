@@ -847,6 +847,36 @@ rgb2cloud train configs/7scenes-default.yaml -s train.threads=1 -s "$DILATED" -s
 #   gate's reading are stored with `rgb2cloud record` as in step 22 (config: step 19's refit plus the median's
 #   three -s generator.median_* settings).
 
+# 24. Steps 22-23's median sharpens a depth step at the working scale, half the photo's resolution, and
+#     the bilinear upsampling after it turns the step back into a ramp two photo pixels wide, whose pixels
+#     are neither surface's depth. generator.upsample_sigma (model/refine.py, ColourGuidedUpsample) replaces
+#     that upsampling by joint bilateral upsampling (Kopf et al. 2007): bilinear interpolation's own 2x2
+#     taps, each weighed also by how alike its pooled colour is to the full-size pixel's, so a pixel on
+#     the edge takes the depth of the side it looks like; with a very large sigma it is bilinear exactly.
+#     No weights, no training: `rgb2cloud evaluate/export --upsample-sigma SIGMA`. `python
+#     bench/generator_size.py` prices it in a new row (its cost does not depend on sigma); a 4x4-tap tent
+#     would be four times its work beside the median's and is not offered.
+#     The fold runs are step 19's, trained again with step 19's two commands (runs/ did not survive into
+#     this checkout; same seed and config), as in step 22. Decided before any of it is scored:
+#     - The instrument is steps 22-23's: REL of the last checkpoints on each fold's validation frames, full
+#       640x480, read through the refitted camera ($REFITTED), with 0.8.0's median (radius 2, sigma 0.2,
+#       spacing 4) on both sides.
+#     - The baseline is those same checkpoints with 0.8.0's median and bilinear upsampling; the change runs
+#       on the very weights it is compared with, so the rule asks for a gain on each fold (step 22's).
+#     - The grid: upsample_sigma 0.05, 0.1, 0.2 or 0.4 (the input's [-1, 1] units), 4 settings. The setting
+#       chosen is the one with the lowest REL averaged over the two folds.
+#     - Kept only if the chosen setting (1) lowers REL and (2) raises delta1 on each fold, against the
+#       baseline, and (3) `python bench/generator_size.py` prices 0.8.0's shape with it within 300 ms.
+#     - Published as 0.9.0 (0.6.0's weights again, from 0.8.0's TorchScript file, with the setting) only if
+#       also (4) it does not lose to 0.8.0 on the test split read through the refitted camera, REL 0.0946
+#       and delta1 0.9431 (step 23), scored once; its card and report row then read it through step 19's
+#       camera, as 0.8.0's. If it is not kept, the test split is not scored and 0.8.0 stays.
+#   The grid (C as the fold, V its validation frames; M='--median-radius 2 --median-sigma 0.2 --median-spacing 4'):
+#     rgb2cloud evaluate runs/fold$C-registered/checkpoints/last.pt --format 7scenes --root $R --frames $V \
+#         --median-scaled --where-fails --colour-camera "$REFITTED" $M --upsample-sigma SIGMA \
+#         --out runs/fold$C-registered/eval-upsample-SIGMA
+#   and the baseline, the same without --upsample-sigma, into runs/fold$C-registered/eval-median-2-0.2-4.
+
 # GPU. Beside the steps, on a leased GPU (issue 4, item 3): the paper's own size and objective,
 #      configs/7scenes-paper.yaml (32 filters, 4 downsamplings, 9 residual blocks, cGAN + 10 x FM only,
 #      full 640x480 frames, bf16 mixed precision), trained on the whole train split 0-799 with no

@@ -28,16 +28,30 @@ MedianRadius = Annotated[
 ]
 MedianSigma = Annotated[float | None, typer.Option(help="the median's colour scale, in the input's [-1, 1] units")]
 MedianSpacing = Annotated[int | None, typer.Option(help="pixels between the median's taps, at the working scale")]
+UpsampleSigma = Annotated[
+    float | None,
+    typer.Option(
+        help="bring the working-scale output up to the photo's size guided by its colours (joint bilateral "
+        "upsampling), with this colour scale in the input's [-1, 1] units (0: plain bilinear; default: as the "
+        "model has it)"
+    ),
+]
 
 
 def _run_as(
-    flip_average: bool | None, median_radius: int | None, median_sigma: float | None, median_spacing: int | None
+    flip_average: bool | None,
+    median_radius: int | None,
+    median_sigma: float | None,
+    median_spacing: int | None,
+    upsample_sigma: float | None,
 ) -> dict:
+    """The inference settings given on the command line (``GeneratorConfig.run_as``); unset ones are left out."""
     given = {
         "flip_average": flip_average,
         "median_radius": median_radius,
         "median_sigma": median_sigma,
         "median_spacing": median_spacing,
+        "upsample_sigma": upsample_sigma,
     }
     return {key: value for key, value in given.items() if value is not None}
 
@@ -83,6 +97,7 @@ def evaluate(
     median_radius: MedianRadius = None,
     median_sigma: MedianSigma = None,
     median_spacing: MedianSpacing = None,
+    upsample_sigma: UpsampleSigma = None,
     median_scaled: Annotated[
         bool,
         typer.Option(
@@ -114,7 +129,9 @@ def evaluate(
     from model.failures import where_fails_line
 
     colour = parse_colour_camera(colour_camera) if colour_camera else None
-    predict, label = load_predictor(model, _run_as(flip_average, median_radius, median_sigma, median_spacing))
+    predict, label = load_predictor(
+        model, _run_as(flip_average, median_radius, median_sigma, median_spacing, upsample_sigma)
+    )
     source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file)
     result, per_image, grid = evaluate_frames(
         predict,
@@ -171,12 +188,13 @@ def export(
     median_radius: MedianRadius = None,
     median_sigma: MedianSigma = None,
     median_spacing: MedianSpacing = None,
+    upsample_sigma: UpsampleSigma = None,
 ) -> None:
     """Export ONNX + TorchScript, check parity with eager PyTorch, publish a version."""
     from model.card import load_card
     from model.export import export_and_publish
 
-    run_as = _run_as(flip_average, median_radius, median_sigma, median_spacing)
+    run_as = _run_as(flip_average, median_radius, median_sigma, median_spacing, upsample_sigma)
     target = export_and_publish(checkpoint, registry, name, version, metrics, parity_image, run_as)
     card = load_card(target)
     for file_name, digest in card.files.items():

@@ -23,7 +23,7 @@ class _Strict(BaseModel):
 
 
 #: The generator settings that only say how trained weights are run (``GeneratorConfig.run_as``).
-INFERENCE_ONLY = ("flip_average", "median_radius", "median_sigma", "median_spacing")
+INFERENCE_ONLY = ("flip_average", "median_radius", "median_sigma", "median_spacing", "upsample_sigma")
 
 
 class GeneratorConfig(_Strict):
@@ -89,6 +89,14 @@ class GeneratorConfig(_Strict):
         le=4,
         description="pixels (at the working scale) between the colour-weighted median's taps: 2 reaches twice "
         "as far at the same cost",
+    )
+    upsample_sigma: float = Field(
+        0.0,
+        ge=0,
+        description="beyond the paper, inference only: bring the working-scale output up to the input's size by "
+        "joint bilateral upsampling (model.refine.ColourGuidedUpsample), each tap weighed by how alike its "
+        "pooled colour is to the output pixel's, with this colour scale in the input's [-1, 1] units; "
+        "0 = plain bilinear upsampling",
     )
 
     @model_validator(mode="after")

@@ -147,6 +147,8 @@ def inference_words(g: GeneratorConfig) -> str:
     if g.median_radius:
         taps = 2 * g.median_radius + 1
         words += f", colour-weighted median {taps}x{taps} taps {g.median_spacing} px apart, sigma {g.median_sigma:g}"
+    if g.upsample_sigma and g.work_scale > 1:
+        words += f", colour-guided upsampling, sigma {g.upsample_sigma:g}"
     return words
 
 

@@ -9,7 +9,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from model.config import DiscriminatorConfig, GeneratorConfig
-from model.refine import ColourWeightedMedian
+from model.refine import ColourGuidedUpsample, ColourWeightedMedian
 
 
 def _norm(channels: int) -> nn.Module:
@@ -104,6 +104,12 @@ class GlobalGenerator(nn.Module):
     work_scale 2 it is a quarter of the pixels, which is what keeps the filter's
     cost (a sorting network per pixel) well inside the 300 ms budget.
 
+    With ``upsample_sigma`` that output is brought up to the input's size by
+    ``model.refine.ColourGuidedUpsample`` instead of plain bilinear interpolation:
+    the taps bilinear interpolation uses, weighed by how alike their colour is to
+    each full-size pixel's, so a step lands on the photo's edge, not across a
+    ``work_scale``-pixel ramp.
+
     Training never takes these paths; they live in the graph so that every
     exported file carries them.
     """
@@ -117,6 +123,7 @@ class GlobalGenerator(nn.Module):
         self.work_scale = config.work_scale  # plain values, so TorchScript can read them
         self.flip_average = config.flip_average
         self.median = ColourWeightedMedian(config.median_radius, config.median_sigma, config.median_spacing)
+        self.upsample = ColourGuidedUpsample(config.work_scale, config.upsample_sigma)
         ngf = config.ngf
         layers: list[nn.Module] = [
             nn.ReflectionPad2d(3),
@@ -166,8 +173,7 @@ class GlobalGenerator(nn.Module):
         if k == 1:
             return self.median(self._core(x), x)
         small = F.avg_pool2d(x, k)
-        y = self.median(self._core(small), small)
-        return F.interpolate(y, scale_factor=float(k), mode="bilinear", align_corners=False)
+        return self.upsample(self.median(self._core(small), small), small, x)
 
     def _core(self, x: torch.Tensor) -> torch.Tensor:
         """The network at its working scale, with the skips and the global offset when configured."""

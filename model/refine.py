@@ -19,6 +19,8 @@ work is what it runs fastest. Fixed operations also let TorchScript and ONNX
 no code of its own.
 """
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -96,3 +98,70 @@ class ColourWeightedMedian(nn.Module):
         for i in range(len(values) - 2, -1, -1):  # downwards, so the smallest qualifying depth wins
             median = torch.where(cumulative[i] >= half, values[i], median)
         return median
+
+
+class ColourGuidedUpsample(nn.Module):
+    """The working-scale depth brought up to the photo's size, each output pixel guided by its own colour.
+
+    The generator runs at 1/``scale`` of the photo, so a depth step the median has made
+    sharp there still becomes a ramp ``scale`` pixels wide when it is upsampled
+    bilinearly, and the ramp's pixels are neither surface's depth. Joint bilateral
+    upsampling (Kopf et al., "Joint bilateral upsampling", SIGGRAPH 2007) weighs each
+    working-scale tap by a tent over its distance, as bilinear interpolation does, times
+    how alike its colour (the pooled photo the network saw) is to the output pixel's own
+    colour (the full-size photo): a pixel on an edge the small grid cannot place takes
+    the depth of the side it looks like. The taps are bilinear interpolation's own two
+    by two, so with a very large ``sigma`` the result is ``F.interpolate(...,
+    mode="bilinear")`` exactly, and ``sigma`` 0 is that plain upsampling. (A wider tent
+    of 4x4 taps would take four times the work, too much beside the median in 300 ms.)
+
+    Each of the scale^2 sub-pixel positions has fixed tap offsets and tent weights, so
+    it is computed on the small grid by slicing and the positions are interleaved by a
+    pixel shuffle: plain element-wise work that TorchScript and ONNX export in-graph.
+    """
+
+    taps: list[list[tuple[int, int, float]]]  # per sub-pixel position: (row offset, column offset, tent weight)
+
+    def __init__(self, scale: int, sigma: float):
+        super().__init__()
+        self.scale_factor = scale
+        self.sigma = sigma
+        self.colour_scale = -0.5 / (sigma * sigma) if sigma > 0 else 0.0
+        tents = [_bilinear_taps((phase + 0.5) / scale - 0.5) for phase in range(scale)]
+        self.taps = [[(dy, dx, wy * wx) for dy, wy in rows for dx, wx in cols] for rows in tents for cols in tents]
+
+    def forward(self, depth: torch.Tensor, rgb_small: torch.Tensor, rgb: torch.Tensor) -> torch.Tensor:
+        k = self.scale_factor
+        if self.sigma <= 0:
+            return F.interpolate(depth, scale_factor=float(k), mode="bilinear", align_corners=False)
+        height, width = depth.shape[2], depth.shape[3]
+        p = 1
+        depth_pad = F.pad(depth, [p, p, p, p], mode="replicate")
+        rgb_pad = F.pad(rgb_small, [p, p, p, p], mode="replicate")
+        positions: list[torch.Tensor] = []
+        for index, taps in enumerate(self.taps):
+            colour = rgb[:, :, index // k :: k, index % k :: k]  # this sub-pixel position's full-size pixels
+            distances: list[torch.Tensor] = []
+            for dy, dx, _ in taps:
+                difference = rgb_pad[:, :, p + dy : p + dy + height, p + dx : p + dx + width] - colour
+                distances.append((difference * difference).sum(1, keepdim=True))
+            # Measured from the closest colour, so the best tap weighs its tent and the sum never underflows;
+            # the common factor this removes cancels in the normalisation.
+            closest = distances[0]
+            for distance in distances[1:]:
+                closest = torch.minimum(closest, distance)
+            total = torch.zeros_like(depth)
+            weight_sum = torch.zeros_like(depth)
+            for i, (dy, dx, tent) in enumerate(taps):
+                weight = tent * torch.exp(self.colour_scale * (distances[i] - closest))
+                total = total + weight * depth_pad[:, :, p + dy : p + dy + height, p + dx : p + dx + width]
+                weight_sum = weight_sum + weight
+            positions.append(total / weight_sum)
+        return F.pixel_shuffle(torch.cat(positions, 1), k)
+
+
+def _bilinear_taps(offset: float) -> list[tuple[int, float]]:
+    """The working-scale taps of a sample ``offset`` (-0.5 to 0.5) pixels from its grid point, with weights > 0."""
+    first = math.floor(offset)
+    taps = [(first, 1.0 - (offset - first)), (first + 1, offset - first)]
+    return [(o, w) for o, w in taps if w > 0]

@@ -294,6 +294,8 @@ def inference_flags(g: GeneratorConfig) -> str:
     if g.median_radius:
         flags += f" --median-radius {g.median_radius} --median-sigma {g.median_sigma:g}"
         flags += f" --median-spacing {g.median_spacing}"
+    if g.upsample_sigma:
+        flags += f" --upsample-sigma {g.upsample_sigma:g}"
     return flags
 
 

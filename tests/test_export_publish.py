@@ -137,16 +137,18 @@ def test_a_flip_averaged_export_is_mirror_equivariant_and_says_so(trained_checkp
     ]
 
 
-def test_a_published_version_runs_and_publishes_again_with_a_colour_weighted_median(
+def test_a_published_version_runs_and_publishes_again_with_a_median_and_guided_upsampling(
     trained_checkpoint, evaluated, tmp_path
 ):
-    """A version whose checkpoint is gone: its TorchScript weights run with a median, then publish as a new one."""
+    """A version whose checkpoint is gone: its TorchScript weights run with a median and colour-guided
+    upsampling, then publish as a new one whose ONNX graph carries both."""
     out, _ = evaluated
     run_cli(*export_args(trained_checkpoint, out / "metrics.json", tmp_path))
     source = tmp_path / "tiny" / "0.1.0"
-    median = ["--median-radius", "1", "--median-sigma", "0.2", "--median-spacing", "2"]
+    median = ["--median-radius", "1", "--median-sigma", "0.2", "--median-spacing", "2", "--upsample-sigma", "0.1"]
     stdout = evaluate_cli(source, tmp_path / "eval-source", "850-851", *median).stdout
-    assert "tiny 0.1.0 (eager, colour-weighted median 3x3 taps 2 px apart, sigma 0.2)" in stdout
+    words = "colour-weighted median 3x3 taps 2 px apart, sigma 0.2, colour-guided upsampling, sigma 0.1"
+    assert f"tiny 0.1.0 (eager, {words})" in stdout
     evaluate_cli(trained_checkpoint, tmp_path / "eval-checkpoint", "850-851", *median)
     from_source, from_checkpoint = (
         json.loads((tmp_path / name / "metrics.json").read_text())["metrics"]
@@ -162,7 +164,7 @@ def test_a_published_version_runs_and_publishes_again_with_a_colour_weighted_med
     derived, original = load_card(tmp_path / "tiny" / "0.2.0"), load_card(source)
     assert derived.derived_from == "tiny 0.1.0" and original.derived_from is None
     assert derived.training == original.training and derived.camera == original.camera
-    settings = {"median_radius": 1, "median_sigma": 0.2, "median_spacing": 2}
+    settings = {"median_radius": 1, "median_sigma": 0.2, "median_spacing": 2, "upsample_sigma": 0.1}
     assert derived.generator == original.generator.run_as(settings)
     evaluate_cli(tmp_path / "tiny" / "0.2.0", tmp_path / "eval-derived", "850-851")
     onnx_metrics = json.loads((tmp_path / "eval-derived" / "metrics.json").read_text())["metrics"]
@@ -172,6 +174,7 @@ def test_a_published_version_runs_and_publishes_again_with_a_colour_weighted_med
         "`generator.median_radius`: 1 → 0",
         "`generator.median_sigma`: 0.2 → 0.1",
         "`generator.median_spacing`: 2 → 1",
+        "`generator.upsample_sigma`: 0.1 → 0.0",
     ]
 
 
