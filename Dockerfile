@@ -1,4 +1,4 @@
-# The serving image: slim Python, the serving install only (no torch), the bundled model.
+# The serving image: slim Python, the contract and the service only (no torch), the bundled model.
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
@@ -13,8 +13,8 @@ RUN groupadd --system --gid 10001 rgb2cloud \
     && useradd --system --uid 10001 --gid rgb2cloud --no-create-home rgb2cloud
 
 COPY pyproject.toml README.md ./
+COPY contract ./contract
 COPY app ./app
-COPY model ./model
 RUN pip install --no-cache-dir .
 
 COPY weights ./weights

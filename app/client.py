@@ -79,3 +79,12 @@ def run(
                 target.parent.mkdir(parents=True, exist_ok=True)
                 target.write_bytes(response.content)
                 yield image, f"wrote {target}"
+
+
+def server_timing(response: httpx.Response) -> dict[str, float]:
+    """The service's ``Server-Timing`` header as {stage: ms}, in the order the stages ran."""
+    stages = {}
+    for entry in response.headers["server-timing"].split(","):
+        name, duration = entry.strip().split(";dur=")
+        stages[name] = float(duration)
+    return stages

@@ -15,7 +15,7 @@ import numpy as np
 from isal import isal_zlib
 from PIL import Image, ImageOps, UnidentifiedImageError
 
-from model.colormap import colorize
+from contract.colormap import colorize
 
 READABLE = "JPEG, PNG, WebP, TIFF, BMP, GIF"
 #: Light compression: deflate is most of a PNG's encode time.

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from app.settings import Settings
-from model.card import ONNX_FILE, TORCHSCRIPT_FILE, CardError, ModelCard, list_versions, load_card, verify_files
-from model.runtime import ExportedGenerator, OnnxGenerator, TorchScriptGenerator
+from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, CardError, ModelCard, list_versions, load_card, verify_files
+from contract.runtime import ExportedGenerator, OnnxGenerator
 
 
 class ModelLoadError(Exception):
@@ -69,10 +69,9 @@ def file_weight_shapes(path: Path, backend: str) -> list[tuple[int, ...]]:
 
         graph = onnx.load(str(path), load_external_data=False).graph
         return [tuple(t.dims) for t in graph.initializer if len(t.dims) == 4]
-    import torch
+    from app.torchscript import weight_shapes
 
-    module = torch.jit.load(str(path), map_location="cpu")
-    return [tuple(t.shape) for t in module.state_dict().values() if t.dim() == 4]
+    return weight_shapes(path)
 
 
 def check_weights(card: ModelCard, path: Path, backend: str) -> None:
@@ -100,9 +99,13 @@ def load_model(settings: Settings) -> LoadedModel:
         raise ModelLoadError(f"{folder / file_name}: the card lists no such file for backend {settings.backend!r}")
     path = folder / file_name
     check_weights(card, path, settings.backend)
-    runner_type = OnnxGenerator if settings.backend == "onnx" else TorchScriptGenerator
     try:
-        runner = runner_type(path, card.input_multiple, settings.threads)
+        if settings.backend == "onnx":
+            runner: ExportedGenerator = OnnxGenerator(path, card.input_multiple, settings.threads)
+        else:
+            from app.torchscript import TorchScriptGenerator
+
+            runner = TorchScriptGenerator(path, card.input_multiple, settings.threads)
     except Exception as e:  # the runtime's own parse errors
         raise ModelLoadError(f"{path}: the {settings.backend} runtime cannot load it: {e}") from e
     model = LoadedModel(card, folder, runner, 0.0)

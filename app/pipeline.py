@@ -12,7 +12,7 @@ from PIL import Image
 from app.imaging import decode_image, encode_colormap_png, encode_depth_png
 from app.loading import LoadedModel
 from app.ply import encode_ply
-from model.geometry import Intrinsics, point_cloud
+from contract.geometry import Intrinsics, point_cloud
 
 
 @dataclass

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from model.geometry import POINT
+from contract.geometry import POINT
 
 
 def encode_ply(points: np.ndarray) -> bytes:
     """``POINT`` records -> PLY bytes. The records already are the vertex layout: one copy."""
     if points.dtype != POINT:
-        raise TypeError(f"expected model.geometry.POINT records, got {points.dtype}")
+        raise TypeError(f"expected contract.geometry.POINT records, got {points.dtype}")
     header = (
         "ply\nformat binary_little_endian 1.0\ncomment rgb2cloud: camera frame, x right, y down, z forward, metres\n"
         f"element vertex {len(points)}\n"

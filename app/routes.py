@@ -4,12 +4,15 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, File, HTTPException, Query, Request, UploadFile
+from fastapi import APIRouter, File, Query, UploadFile
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
-from app.loading import available_models
+from app.deps import MaybeModelDep, MetricsDep, ModelDep, PoolDep, SettingsDep
+from app.loading import LoadedModel, available_models
+from app.observability import ServiceMetrics
 from app.pipeline import CloudOptions, Result, depth_png, point_cloud_ply
+from app.pool import InferencePool
 
 router = APIRouter()
 
@@ -24,12 +27,10 @@ ERRORS = {
 }
 
 
-async def _run(request: Request, fn, *args) -> Result:
-    state = request.app.state
-    if state.model is None:
-        raise HTTPException(503, "the model is not loaded yet", headers={"Retry-After": "1"})
-    result: Result = await state.pool.run(fn, state.model, *args)
-    state.metrics.inference.observe(result.inference_seconds)
+async def _run(pool: InferencePool, metrics: ServiceMetrics, fn, model: LoadedModel, *args) -> Result:
+    """Run one request's pipeline in the pool and add the timing headers."""
+    result: Result = await pool.run(fn, model, *args)
+    metrics.inference.observe(result.inference_seconds)
     result.headers["X-Inference-Ms"] = f"{result.inference_seconds * 1000:.1f}"
     result.headers["Server-Timing"] = result.server_timing()
     return result
@@ -37,23 +38,28 @@ async def _run(request: Request, fn, *args) -> Result:
 
 @router.post("/depth", response_class=Response, responses={**PNG_RESPONSE, **ERRORS})
 async def depth(
-    request: Request,
+    model: ModelDep,
+    settings: SettingsDep,
+    pool: PoolDep,
+    metrics: MetricsDep,
     image: Annotated[UploadFile, IMAGE_FIELD],
     format: Annotated[
         Literal["png16", "colormap"], Query(description="png16: 16-bit millimetres (default); colormap: preview")
     ] = "png16",
 ) -> Response:
     """Metric depth for the photo: 16-bit PNG in millimetres, 0 = no depth, at the photo's size."""
-    s = request.app.state.settings
-    result = await _run(
-        request, depth_png, await image.read(), s.max_pixels, s.inference_max_pixels, format == "colormap"
-    )
+    data = await image.read()
+    limits = settings.max_pixels, settings.inference_max_pixels
+    result = await _run(pool, metrics, depth_png, model, data, *limits, format == "colormap")
     return Response(result.body, media_type="image/png", headers=result.headers)
 
 
 @router.post("/pointcloud", response_class=Response, responses={**PLY_RESPONSE, **ERRORS})
 async def pointcloud(
-    request: Request,
+    model: ModelDep,
+    settings: SettingsDep,
+    pool: PoolDep,
+    metrics: MetricsDep,
     image: Annotated[UploadFile, IMAGE_FIELD],
     fx: Annotated[float | None, Query(gt=0, allow_inf_nan=False, description="focal length x, input pixels")] = None,
     fy: Annotated[float | None, Query(gt=0, allow_inf_nan=False, description="focal length y, input pixels")] = None,
@@ -66,9 +72,10 @@ async def pointcloud(
     """A coloured point cloud (formula (5): x right, y down, z forward, metres) as binary PLY."""
     if min_depth > max_depth:
         return JSONResponse({"detail": f"min_depth ({min_depth}) is greater than max_depth ({max_depth})"}, 422)
-    s = request.app.state.settings
     options = CloudOptions(fx, fy, cx, cy, stride, min_depth, max_depth)
-    result = await _run(request, point_cloud_ply, await image.read(), s.max_pixels, s.inference_max_pixels, options)
+    data = await image.read()
+    limits = settings.max_pixels, settings.inference_max_pixels
+    result = await _run(pool, metrics, point_cloud_ply, model, data, *limits, options)
     return Response(result.body, media_type="application/octet-stream", headers=result.headers)
 
 
@@ -79,25 +86,23 @@ async def healthz() -> dict[str, str]:
 
 
 @router.get("/readyz", responses={503: {"description": "not ready"}})
-async def readyz(request: Request) -> JSONResponse:
+async def readyz(model: MaybeModelDep) -> JSONResponse:
     """200 once the model is loaded, verified and warmed up."""
-    model = request.app.state.model
     if model is None:
         return JSONResponse({"status": "loading"}, 503)
     return JSONResponse({"status": "ready", "model": model.card.name, "version": model.card.version})
 
 
 @router.get("/v1/models")
-async def models(request: Request) -> dict:
-    """The loaded model's card, and every version in the registry."""
-    model = request.app.state.model
+async def models(model: MaybeModelDep, settings: SettingsDep) -> dict:
+    """The loaded model's card (null while loading), and every version in the registry."""
     return {
         "loaded": None if model is None else model.card.model_dump(mode="json"),
-        "available": available_models(request.app.state.settings.registry),
+        "available": available_models(settings.registry),
     }
 
 
 @router.get("/metrics", response_class=Response)
-async def metrics(request: Request) -> Response:
+async def metrics(metrics: MetricsDep) -> Response:
     """Prometheus text format."""
-    return Response(generate_latest(request.app.state.metrics.registry), media_type=CONTENT_TYPE_LATEST)
+    return Response(generate_latest(metrics.registry), media_type=CONTENT_TYPE_LATEST)

@@ -14,53 +14,42 @@ on one machine, so read the ratio column.
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
+from serving import DEFAULT_IMAGE, machine, median_ms
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "bench"))
+from contract.runtime import OnnxGenerator
+from trainer.config import load_config
+from trainer.export import export_onnx
+from trainer.inference import InferenceGraph
+from trainer.networks import GlobalGenerator
 
-from serving import DEFAULT_IMAGE, machine, median_ms  # noqa: E402
+CONFIGS_DIR = Path(__file__).resolve().parents[1] / "configs"
+SHIPPED = CONFIGS_DIR / "rgb2cloud-7scenes-0.8.0.yaml"
 
-from model.config import load_config  # noqa: E402
-from model.export import export_onnx  # noqa: E402
-from model.networks import GlobalGenerator  # noqa: E402
-from model.runtime import OnnxGenerator  # noqa: E402
-
-#: (label, config, overrides): the bundled model's shape first, the ratio column's reference.
+#: (label, config, overrides): the bundled model's network alone first, the ratio column's reference.
 CONFIGS = [
     (
-        "bundled 0.5.0's shape: 16 filters, 3 downsamplings, 6 dilated blocks, half resolution",
-        "configs/7scenes-default.yaml",
-        ["generator.dilations=[1, 2, 4, 8, 4, 2]"],
+        "bundled shape: 16 filters, 3 downsamplings, 6 dilated blocks, half resolution, no median",
+        SHIPPED,
+        ["inference.median_radius=0"],
     ),
     (
-        "bundled shape at full resolution (work_scale 1)",
-        "configs/7scenes-default.yaml",
-        ["generator.dilations=[1, 2, 4, 8, 4, 2]", "generator.work_scale=1"],
+        "bundled shape at full resolution (work_scale 1), no median",
+        SHIPPED,
+        ["generator.work_scale=1", "inference.median_radius=0"],
     ),
-    ("paper size: 32 filters, 4 downsamplings, 9 blocks, full resolution", "configs/7scenes-paper.yaml", []),
+    ("paper size: 32 filters, 4 downsamplings, 9 blocks, full resolution", CONFIGS_DIR / "7scenes-paper.yaml", []),
     *(
         (
             f"bundled shape, its output refined by a colour-weighted median of {2 * r + 1}x{2 * r + 1} taps",
-            "configs/7scenes-default.yaml",
-            ["generator.dilations=[1, 2, 4, 8, 4, 2]", f"generator.median_radius={r}"],
+            SHIPPED,
+            [f"inference.median_radius={r}"],
         )
-        for r in (1, 2)  # its cost depends on the taps only, not on their spacing or sigma
-    ),
-    (
-        "bundled shape, 5x5-tap median, then colour-guided upsampling",
-        "configs/7scenes-default.yaml",
-        [
-            "generator.dilations=[1, 2, 4, 8, 4, 2]",
-            "generator.median_radius=2",
-            "generator.upsample_sigma=0.2",  # any sigma > 0 turns it on; its cost does not depend on it
-        ],
+        for r in (1, 2)  # its cost depends on the taps only, not on their spacing or sigma; 2 is the bundled model
     ),
 ]
 
@@ -69,13 +58,14 @@ def measure(
     config: Path, overrides: list[str], rgb: np.ndarray, threads: int, repeats: int
 ) -> tuple[int, float, float]:
     """(weights, ONNX MB, median ms) of the config's generator, untrained."""
-    generator = GlobalGenerator(load_config(config, overrides).generator)
-    weights = sum(p.numel() for p in generator.parameters())
+    run = load_config(config, overrides)
+    graph = InferenceGraph(GlobalGenerator(run.generator), run.inference)
+    weights = sum(p.numel() for p in graph.parameters())
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "generator.onnx"
-        export_onnx(generator, path)
+        export_onnx(graph, path)
         size_mb = path.stat().st_size / 1e6
-        runner = OnnxGenerator(path, generator.config.input_multiple, threads)
+        runner = OnnxGenerator(path, graph.input_multiple, threads)
         ms = median_ms(lambda: runner.predict_raw(rgb), repeats)
     return weights, size_mb, ms
 
@@ -89,7 +79,7 @@ def main() -> None:
     args = parser.parse_args()
 
     rgb = np.asarray(Image.open(args.image).convert("RGB").resize((640, 480)))
-    rows = [(label, *measure(REPO / path, extra, rgb, args.threads, args.repeats)) for label, path, extra in CONFIGS]
+    rows = [(label, *measure(path, extra, rgb, args.threads, args.repeats)) for label, path, extra in CONFIGS]
     ref = rows[0][3]
     lines = [f"| {label} | {w / 1e6:.2f} M | {mb:.1f} | {ms:.0f} | {ms / ref:.1f}x |" for label, w, mb, ms in rows]
     table = (

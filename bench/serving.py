@@ -15,7 +15,6 @@ import io
 import os
 import platform
 import statistics
-import sys
 import tempfile
 import time
 import zlib
@@ -27,19 +26,17 @@ import numpy as np
 from isal import isal_zlib
 from PIL import Image
 
+from app.client import server_timing
+from app.imaging import PNG_COMPRESS_LEVEL, decode_image, depth_png_rows, encode_depth_png
+from app.loading import load_model
+from app.ply import encode_ply
+from app.process import running_service
+from app.settings import Settings
+from contract.codec import rgb_to_input
+from contract.geometry import Intrinsics, pad_to_multiple, point_cloud
+from trainer.machine import cpu_description
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests"))
-
-from service_server import running_service, server_timing  # noqa: E402
-
-from app.imaging import PNG_COMPRESS_LEVEL, decode_image, depth_png_rows, encode_depth_png  # noqa: E402
-from app.loading import load_model  # noqa: E402
-from app.ply import encode_ply  # noqa: E402
-from app.settings import Settings  # noqa: E402
-from model.codec import rgb_to_input  # noqa: E402
-from model.geometry import Intrinsics, pad_to_multiple, point_cloud  # noqa: E402
-from model.machine import cpu_description  # noqa: E402
 
 DEFAULT_IMAGE = REPO.parent / "shared/data/7scenes-redkitchen/frame-000900.color.jpg"
 
@@ -167,12 +164,11 @@ def main() -> None:
     try:
         import torch
 
-        from model.networks import GlobalGenerator
+        from trainer.checkpoint import load_graph
 
         torch.set_num_threads(args.threads)
         scripted = torch.jit.load(str(model.path / "generator.torchscript.pt")).eval()
-        eager = GlobalGenerator(card.generator).eval()
-        eager.load_state_dict(scripted.state_dict())
+        eager, _, _ = load_graph(model.path)  # the same weights and inference settings, eagerly
         xt = torch.from_numpy(x)
         with torch.inference_mode():
             backends["TorchScript"] = median_ms(lambda: scripted(xt), r)

@@ -55,10 +55,10 @@ def write_config(path: Path, config: dict) -> Path:
     return path
 
 
-def run_cli(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess:
-    """Run ``rgb2cloud`` as a user would, failing the test with its output on error."""
-    result = subprocess.run([sys.executable, "-m", "model", *args], cwd=cwd, capture_output=True, text=True)
-    assert result.returncode == 0, f"rgb2cloud {' '.join(args)} failed:\n{result.stdout}\n{result.stderr}"
+def run_cli(*args: str, cwd: Path = REPO, package: str = "cli") -> subprocess.CompletedProcess:
+    """Run ``rgb2cloud`` (or, with ``package="lab"``, ``rgb2cloud-lab``) as a user would; fail with its output."""
+    result = subprocess.run([sys.executable, "-m", package, *args], cwd=cwd, capture_output=True, text=True)
+    assert result.returncode == 0, f"{package} {' '.join(args)} failed:\n{result.stdout}\n{result.stderr}"
     return result
 
 

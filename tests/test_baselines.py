@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from model.baselines import fit_baselines, score_baselines
-from model.data.frames import Frame
-from model.geometry import Intrinsics
+from contract.geometry import Intrinsics
+from trainer.baselines import fit_baselines, score_baselines
+from trainer.data.frames import Frame
 
 K = Intrinsics(1, 1, 0, 0, 2, 1)
 

@@ -7,9 +7,9 @@ import numpy as np
 from conftest import TUM_FRAME, run_cli
 from PIL import Image
 from plyfile import PlyData
-from service_server import running_service
 
 from app.client import ClientOptions, run
+from app.process import running_service
 
 
 def _photos(folder, count=2):

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import pytest
-from conftest import SEVEN_SCENES, tiny_config, write_config
+from conftest import REPO, SEVEN_SCENES, tiny_config, write_config
 from pydantic import ValidationError
 
-from model.config import OptimConfig, apply_overrides, load_config
+from contract.card import load_card
+from trainer.config import OptimConfig, apply_overrides, complete_config, load_config, migrate_config
 
 
 def test_overrides_are_typed_and_nested(tmp_path):
@@ -32,3 +33,42 @@ def test_linear_decay_schedule():
     optim = OptimConfig(lr=1.0, decay_start=10, decay_steps=10)
     assert [optim.lr_at(s) for s in (0, 9, 10, 15, 20, 30)] == [1.0, 1.0, 1.0, 0.5, 0.0, 0.0]
     assert OptimConfig().lr_at(10**6) == 0.0002  # the paper: constant
+
+
+def test_every_config_file_loads():
+    for path in sorted((REPO / "configs").glob("*.yaml")):
+        load_config(path)
+
+
+@pytest.mark.parametrize("version_dir", sorted((REPO / "weights").glob("*/*")), ids=lambda p: f"{p.parent.name}")
+def test_each_bundled_model_has_one_config_that_reproduces_it(version_dir):
+    """configs/NAME-VERSION.yaml is the training config in the card, plus the inference settings exported."""
+    card = load_card(version_dir)
+    config = load_config(REPO / "configs" / f"{card.name}-{card.version}.yaml").model_dump(mode="json")
+    trained = complete_config(card.training.config)
+    for tree in (config, trained):
+        del tree["train"]["out_dir"]  # where the run writes, not what it trains
+    assert {k: v for k, v in config.items() if k != "inference"} == {
+        k: v for k, v in trained.items() if k != "inference"
+    }
+    assert config["inference"] == card.inference.model_dump(mode="json")
+    assert config["generator"] == card.generator.model_dump(mode="json")
+
+
+def test_an_old_config_migrates_and_a_retired_option_that_was_on_is_refused():
+    old = {
+        "generator": {"ngf": 8, "skips": False, "flip_average": False, "median_radius": 2},
+        "optim": {"ema": 0.0},
+        "data": {"train": [], "transform": {"zoom_depth": False, "rotate_deg": 0.0}},
+    }
+    assert migrate_config(old) == {
+        "generator": {"ngf": 8},
+        "inference": {"median_radius": 2},
+        "optim": {},
+        "data": {"train": [], "transform": {}},
+    }
+    assert old["generator"]["skips"] is False  # the input is left as it was
+    with pytest.raises(
+        ValueError, match=r"retired options \{'generator.skips': True, 'loss.gradient_matching': 50.0\}"
+    ):
+        migrate_config({"generator": {"skips": True}, "loss": {"gradient_matching": 50.0}})

@@ -15,7 +15,8 @@ from pathlib import Path
 import httpx
 import pytest
 from conftest import REPO, TUM_FRAME
-from service_server import free_port
+
+from app.process import free_port
 
 DOCKERFILE = REPO / "Dockerfile"
 

@@ -5,18 +5,15 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from collections import Counter
 from datetime import UTC, datetime
 
 import numpy as np
 import onnx
 import pytest
-import torch
 from conftest import REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, export_args, run_cli
 from PIL import Image
 
-from app.loading import file_weight_shapes
-from model.card import (
+from contract.card import (
     ONNX_FILE,
     TORCHSCRIPT_FILE,
     Camera,
@@ -30,13 +27,12 @@ from model.card import (
     publish,
     verify_files,
 )
-from model.checkpoint import load_ensemble, load_generator
-from model.codec import INPUT_ENCODING, DepthEncoding
-from model.config import ColourCamera, GeneratorConfig
-from model.export import check_parity, export_onnx, export_torchscript, metrics_from_report, parity_sizes
-from model.networks import GlobalGenerator
-from model.report import config_diff, training_config
-from model.runtime import OnnxGenerator
+from contract.codec import INPUT_ENCODING, DepthEncoding
+from contract.geometry import ColourCamera
+from contract.runtime import OnnxGenerator
+from contract.spec import GeneratorSpec, InferenceSettings
+from trainer.checkpoint import load_graph
+from trainer.export import check_parity, export_onnx, export_torchscript, metrics_from_report, parity_sizes
 
 
 @pytest.fixture(scope="module")
@@ -59,47 +55,14 @@ def test_evaluate_prints_the_paper_table_and_writes_reports(evaluated):
         assert im.size == (3 * 640, 2 * 480)  # RGB | predicted | truth, full resolution
 
 
-def test_several_checkpoints_score_as_one_ensemble(trained_checkpoint, evaluated, tmp_path):
-    """Two runs' checkpoints evaluate as the mean of their outputs; mismatched runs are refused."""
-    state = torch.load(trained_checkpoint, weights_only=True)
-    for key, value in state["generator"].items():
-        if value.is_floating_point():
-            state["generator"][key] = value * 0.9  # another run's weights, same config
-    other = tmp_path / "other" / "checkpoints" / "last.pt"
-    other.parent.mkdir(parents=True)
-    torch.save(state, other)
-    ensemble, _, states = load_ensemble([trained_checkpoint, other])
-    members = [load_generator(p)[0] for p in (trained_checkpoint, other)]
-    x = torch.randn(1, 3, 32, 48)
-    with torch.inference_mode():
-        torch.testing.assert_close(ensemble(x), (members[0](x) + members[1](x)) / 2)
-    assert [s["step"] for s in states] == [6, 6]
-
-    args = ["--format", "7scenes", "--root", str(SEVEN_SCENES), "--frames", "850-852", "--out", str(tmp_path / "e")]
-    stdout = run_cli("evaluate", str(trained_checkpoint), str(other), *args).stdout
-    assert "rgb2cloud (mean of run/last.pt step 6; other/last.pt step 6)" in stdout
-    single = json.loads((evaluated[0] / "metrics.json").read_text())["metrics"]
-    assert json.loads((tmp_path / "e" / "metrics.json").read_text())["metrics"]["rel"] != single["rel"]
-
-    state["config"]["generator"]["work_scale"] = 1  # the same weights, run another way
-    torch.save(state, other)
-    result = subprocess.run(
-        [sys.executable, "-m", "model", "evaluate", str(trained_checkpoint), str(other), *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-    )
-    assert result.returncode == 1 and "generator config differs" in result.stderr
-
-
 def test_parity_at_two_sizes_one_off_grid(trained_checkpoint, tmp_path):
-    generator, config, _ = load_generator(trained_checkpoint)
-    export_onnx(generator, tmp_path / ONNX_FILE)
-    export_torchscript(generator, tmp_path / TORCHSCRIPT_FILE)
+    graph, config, _ = load_graph(trained_checkpoint)
+    export_onnx(graph, tmp_path / ONNX_FILE)
+    export_torchscript(graph, tmp_path / TORCHSCRIPT_FILE)
     model = onnx.load(str(tmp_path / ONNX_FILE))
     assert not any(t.data_location == onnx.TensorProto.EXTERNAL for t in model.graph.initializer)  # one file
     image = np.asarray(Image.open(TUM_FRAME / "TUM_color.png").convert("RGB"))
-    report = check_parity(generator, tmp_path, image)
+    report = check_parity(graph, tmp_path, image)
     assert len(report) == 4 and max(report.values()) <= 1e-4
     sizes = parity_sizes(480, 640, config.generator.input_multiple)
     assert any(h % 4 or w % 4 for h, w in sizes)
@@ -107,48 +70,17 @@ def test_parity_at_two_sizes_one_off_grid(trained_checkpoint, tmp_path):
     assert runner.predict_raw(image[: 481 - 4, : 641 - 6]).shape == (477, 635)
 
 
-def test_a_global_offset_generator_exports_with_parity_and_passes_the_services_weight_check(tmp_path):
-    config = GeneratorConfig(ngf=8, n_downsample=2, n_blocks=2, work_scale=2, dilations=[1, 2], global_offset=True)
-    torch.manual_seed(0)
-    generator = GlobalGenerator(config).eval()
-    with torch.no_grad():  # a trained head: non-zero, so the exported graphs must carry its path
-        torch.nn.init.normal_(generator.global_offset[0].out.weight, std=0.5)
-    export_onnx(generator, tmp_path / ONNX_FILE)
-    export_torchscript(generator, tmp_path / TORCHSCRIPT_FILE)
-    image = np.asarray(Image.open(TUM_FRAME / "TUM_color.png").convert("RGB"))
-    assert max(check_parity(generator, tmp_path, image).values()) <= 1e-4
-    for backend, file in (("onnx", ONNX_FILE), ("torchscript", TORCHSCRIPT_FILE)):
-        assert Counter(file_weight_shapes(tmp_path / file, backend)) == Counter(config.weight_shapes())
-
-
-def test_a_flip_averaged_export_is_mirror_equivariant_and_says_so(trained_checkpoint, evaluated, tmp_path):
-    out, _ = evaluated
-    stdout = run_cli(*export_args(trained_checkpoint, out / "metrics.json", tmp_path), "--flip-average").stdout
-    assert "parity onnx@" in stdout  # export refuses to publish a graph that breaks parity
-    folder = tmp_path / "tiny" / "0.1.0"
-    card = load_card(folder)
-    assert card.generator.flip_average and not card.training.config["generator"]["flip_average"]
-    runner = OnnxGenerator(folder / ONNX_FILE, card.input_multiple)
-    image = np.asarray(Image.open(TUM_FRAME / "TUM_color.png").convert("RGB"))
-    np.testing.assert_allclose(runner.predict_raw(image[:, ::-1]), runner.predict_raw(image)[:, ::-1], atol=1e-5)
-    # The report's ablation shows how the version runs beside how it was trained.
-    assert config_diff(training_config(folder), training_config(trained_checkpoint)) == [
-        "`generator.flip_average`: True → False"
-    ]
-
-
-def test_a_published_version_runs_and_publishes_again_with_a_median_and_guided_upsampling(
+def test_a_published_version_runs_and_publishes_again_with_other_inference_settings(
     trained_checkpoint, evaluated, tmp_path
 ):
-    """A version whose checkpoint is gone: its TorchScript weights run with a median and colour-guided
-    upsampling, then publish as a new one whose ONNX graph carries both."""
+    """A version whose checkpoint is gone: its TorchScript weights run with a colour-weighted median,
+    then publish as a new version whose ONNX graph carries it."""
     out, _ = evaluated
     run_cli(*export_args(trained_checkpoint, out / "metrics.json", tmp_path))
     source = tmp_path / "tiny" / "0.1.0"
-    median = ["--median-radius", "1", "--median-sigma", "0.2", "--median-spacing", "2", "--upsample-sigma", "0.1"]
+    median = ["--inference", "median_radius=1", "--inference", "median_sigma=0.2", "--inference", "median_spacing=2"]
     stdout = evaluate_cli(source, tmp_path / "eval-source", "850-851", *median).stdout
-    words = "colour-weighted median 3x3 taps 2 px apart, sigma 0.2, colour-guided upsampling, sigma 0.1"
-    assert f"tiny 0.1.0 (eager, {words})" in stdout
+    assert "tiny 0.1.0 (eager, colour-weighted median 3x3 taps 2 px apart, sigma 0.2)" in stdout
     evaluate_cli(trained_checkpoint, tmp_path / "eval-checkpoint", "850-851", *median)
     from_source, from_checkpoint = (
         json.loads((tmp_path / name / "metrics.json").read_text())["metrics"]
@@ -164,18 +96,25 @@ def test_a_published_version_runs_and_publishes_again_with_a_median_and_guided_u
     derived, original = load_card(tmp_path / "tiny" / "0.2.0"), load_card(source)
     assert derived.derived_from == "tiny 0.1.0" and original.derived_from is None
     assert derived.training == original.training and derived.camera == original.camera
-    settings = {"median_radius": 1, "median_sigma": 0.2, "median_spacing": 2, "upsample_sigma": 0.1}
-    assert derived.generator == original.generator.run_as(settings)
+    assert derived.generator == original.generator  # the architecture is the weights'
+    assert derived.inference == InferenceSettings(median_radius=1, median_sigma=0.2, median_spacing=2)
+    assert original.inference == InferenceSettings()
     evaluate_cli(tmp_path / "tiny" / "0.2.0", tmp_path / "eval-derived", "850-851")
     onnx_metrics = json.loads((tmp_path / "eval-derived" / "metrics.json").read_text())["metrics"]
     for key in ("rel", "rmse", "delta1", "pc_rmse_mean"):
         assert abs(onnx_metrics[key] - from_source[key]) < 1e-4
-    assert config_diff(training_config(tmp_path / "tiny" / "0.2.0"), training_config(source)) == [
-        "`generator.median_radius`: 1 → 0",
-        "`generator.median_sigma`: 0.2 → 0.1",
-        "`generator.median_spacing`: 2 → 1",
-        "`generator.upsample_sigma`: 0.1 → 0.0",
-    ]
+
+
+def test_evaluate_refuses_an_unknown_inference_setting_in_one_line(trained_checkpoint, tmp_path):
+    args = ["--format", "7scenes", "--root", str(SEVEN_SCENES), "--frames", "850", "--out", str(tmp_path)]
+    result = subprocess.run(
+        [sys.executable, "-m", "cli", "evaluate", str(trained_checkpoint), *args, "--inference", "ngf=8"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+    )
+    assert result.returncode == 1 and result.stderr.startswith("error: --inference 'ngf=8'")
+    assert "Traceback" not in result.stderr
 
 
 def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_checkpoint, evaluated, tmp_path):
@@ -205,7 +144,7 @@ def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_check
     for key in ("rel", "rmse", "delta1", "pc_rmse_mean"):
         assert abs(onnx_metrics[key] - eager_metrics[key]) < 1e-4
 
-    again = subprocess.run([sys.executable, "-m", "model", *args], cwd=REPO, capture_output=True, text=True)
+    again = subprocess.run([sys.executable, "-m", "cli", *args], cwd=REPO, capture_output=True, text=True)
     assert again.returncode == 1 and again.stderr.startswith("error: ") and "already exists" in again.stderr
     assert "Traceback" not in again.stderr
     assert load_card(folder) == card  # untouched
@@ -226,7 +165,8 @@ def _card(version: str) -> ModelCard:
         version=version,
         created=datetime.now(UTC),
         files={},
-        generator=GeneratorConfig(),
+        generator=GeneratorSpec(),
+        inference=InferenceSettings(),
         input_multiple=16,
         input_encoding=INPUT_ENCODING,
         depth_encoding=DepthEncoding(),
@@ -277,14 +217,14 @@ def test_registry_verifies_orders_versions_and_never_overwrites(tmp_path):
         _card("v1")
 
 
-def test_onnx_path_and_shared_modules_import_no_torch(trained_checkpoint, tmp_path):
+def test_the_onnx_path_runs_on_the_contract_alone_without_torch(trained_checkpoint, tmp_path):
     """What the service needs (geometry, codec, card, runtime on ONNX) works without torch."""
-    generator, config, _ = load_generator(trained_checkpoint)
-    export_onnx(generator, tmp_path / ONNX_FILE)
+    graph, config, _ = load_graph(trained_checkpoint)
+    export_onnx(graph, tmp_path / ONNX_FILE)
     code = f"""
 import sys
 import numpy as np
-from model import card, codec, config, geometry, metrics, runtime
+from contract import card, codec, geometry, runtime, spec
 g = runtime.OnnxGenerator({str(tmp_path / ONNX_FILE)!r}, {config.generator.input_multiple})
 y = g.predict_raw(np.zeros((30, 41, 3), np.uint8))
 assert y.shape == (30, 41), y.shape

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from model.codec import DepthEncoding, rgb_to_input
-from model.config import TransformConfig
-from model.data.frames import Frame
-from model.data.transforms import TransformParams, apply_params, rotate_frame, rotation_matrix, sample_params
-from model.geometry import KINECT_DEFAULT, POINT, Intrinsics, colours, pad_to_multiple, point_cloud, xyz
+from contract.codec import DepthEncoding, rgb_to_input
+from contract.geometry import KINECT_DEFAULT, POINT, Intrinsics, colours, pad_to_multiple, point_cloud, xyz
+from trainer.config import TransformConfig
+from trainer.data.frames import Frame
+from trainer.data.transforms import TransformParams, apply_params, sample_params
 
 
 def test_point_cloud_is_formula_5():
@@ -81,46 +81,6 @@ def test_sampled_params_cover_the_crop_and_jitter_only_rgb():
     assert out.intrinsics.width == 320 and out.intrinsics.height == 240
 
 
-def test_virtual_turn_keeps_the_scene_where_it_was():
-    """After a turn R, every back-projected point is R times a point of the original scene.
-
-    The scene is a tilted plane n . X = 2, so after the turn its points must satisfy
-    (R n) . X' = 2; and pixels the old view never saw get no depth and black RGB.
-    """
-    h, w = 96, 128
-    k = Intrinsics(110.0, 112.0, 63.2, 47.7, w, h)
-    normal = np.array([0.2, -0.1, 1.0])
-    uu, vv = np.meshgrid(np.arange(w), np.arange(h))
-    rays = np.stack([(uu - k.cx) / k.fx, (vv - k.cy) / k.fy, np.ones((h, w))], -1)
-    depth = (2.0 / (rays @ normal)).astype(np.float32)
-    frame = Frame(np.full((h, w, 3), 200, np.uint8), depth, k, "plane")
-    r = rotation_matrix(12.0, -7.0, 5.0)
-    out = rotate_frame(frame, r)
-    assert out.intrinsics == k and out.depth.shape == (h, w)
-    valid = out.depth > 0
-    assert 0.5 < valid.mean() < 0.95  # a 12° turn leaves a border the old view never saw
-    points = (rays * out.depth[..., None])[valid]
-    # Depth is sampled by nearest neighbour, so a point may sit up to half a pixel off the ray.
-    np.testing.assert_allclose(points @ (r @ normal), 2.0, rtol=0.02)
-    assert (out.rgb[~valid] == 0).all() and (out.rgb[valid] > 190).all()
-
-
-def test_rotation_is_off_by_default_and_drawn_within_bounds():
-    frame = Frame(
-        np.full((48, 64, 3), 9, np.uint8), np.full((48, 64), 1.5, np.float32), KINECT_DEFAULT.resized(64, 48), "f"
-    )
-    off = TransformConfig(size=(48, 64), scale=(1.0, 1.0))
-    assert sample_params(np.random.default_rng(3), off, 48, 64).rotation == (0.0, 0.0, 0.0)
-    on = off.model_copy(update={"rotate_deg": 10.0})
-    p_on, p_off = (
-        sample_params(np.random.default_rng(3), on, 48, 64),
-        sample_params(np.random.default_rng(3), off, 48, 64),
-    )
-    assert max(abs(a) for a in p_on.rotation) <= 10.0 and any(p_on.rotation)
-    assert (p_on.flip, p_on.brightness) == (p_off.flip, p_off.brightness)  # the other draws are unchanged
-    np.testing.assert_array_equal(rotate_frame(frame, np.eye(3)).depth, frame.depth)
-
-
 def test_pad_to_multiple():
     img = np.arange(5 * 7 * 3).reshape(5, 7, 3)
     padded = pad_to_multiple(img, 4)
@@ -145,67 +105,3 @@ def test_rgb_to_input_range_and_layout():
     x = rgb_to_input(np.array([[[0, 255, 127]]], dtype=np.uint8))
     assert x.shape == (1, 3, 1, 1) and x.dtype == np.float32
     np.testing.assert_allclose(x.ravel(), [-1.0, 1.0, 127 / 127.5 - 1], rtol=1e-6)
-
-
-def test_zoom_depth_shows_a_zoomed_frame_as_seen_from_closer():
-    """Enlarged z times beyond the crop-filling scale, a facing plane at 2 m comes to 2 / z m,
-    and its back-projected x, y stay where they were; off, the zoom keeps depth (a longer lens)."""
-    h, w = 96, 128
-    k = Intrinsics(110.0, 112.0, 63.5, 47.5, w, h)
-    frame = Frame(np.full((h, w, 3), 90, np.uint8), np.full((h, w), 2.0, np.float32), k, "wall")
-    off = TransformConfig(size=(48, 64), scale=(0.75, 0.75), flip=False, brightness=0, contrast=0, saturation=0)
-    on = off.model_copy(update={"zoom_depth": True})
-    rng_off, rng_on = np.random.default_rng(5), np.random.default_rng(5)
-    p_off, p_on = sample_params(rng_off, off, h, w), sample_params(rng_on, on, h, w)
-    assert p_off.closer == 1.0 and p_on.closer == pytest.approx(1.5)  # 0.75 against the 0.5 that fills the crop
-    assert p_on.crop == p_off.crop
-    assert rng_on.bit_generator.state == rng_off.bit_generator.state  # no extra draw: other configs keep their stream
-    np.testing.assert_allclose(apply_params(frame, p_off).depth, 2.0)
-    out = apply_params(frame, p_on)
-    np.testing.assert_allclose(out.depth, 2.0 / 1.5, rtol=1e-6)
-    top, left = p_on.crop[:2]
-    k_out = out.intrinsics
-    for v2, u2 in [(0, 0), (47, 63), (20, 33)]:
-        u, v = (u2 + left + 0.5) / 0.75 - 0.5, (v2 + top + 0.5) / 0.75 - 0.5  # where the pixel came from
-        x_before, y_before = 2.0 * (u - k.cx) / k.fx, 2.0 * (v - k.cy) / k.fy
-        x_after = out.depth[v2, u2] * (u2 - k_out.cx) / k_out.fx
-        y_after = out.depth[v2, u2] * (v2 - k_out.cy) / k_out.fy
-        assert (x_after, y_after) == (pytest.approx(x_before), pytest.approx(y_before))
-
-
-def test_zoom_out_shows_a_shrunken_frame_inside_borders_as_seen_from_farther():
-    """Below the crop-filling scale, zoom_out pads with black, depth-less borders, and with zoom_depth
-    a facing plane at 2 m moves to 2 / z m for z < 1 with each pixel's x, y kept; off, the scale is
-    raised to fill the crop; on, scales that fill the crop draw exactly what they drew without it."""
-    h, w = 96, 128
-    k = Intrinsics(110.0, 112.0, 63.5, 47.5, w, h)
-    frame = Frame(np.full((h, w, 3), 90, np.uint8), np.full((h, w), 2.0, np.float32), k, "wall")
-    off = TransformConfig(size=(48, 64), scale=(0.4, 0.4), flip=False, brightness=0, contrast=0, saturation=0)
-    on = off.model_copy(update={"zoom_out": True, "zoom_depth": True})
-    rng_off, rng_on = np.random.default_rng(7), np.random.default_rng(7)
-    p_off, p_on = sample_params(rng_off, off, h, w), sample_params(rng_on, on, h, w)
-    assert p_off.resize == (48, 64) and p_off.crop == (0, 0, 48, 64)  # raised to 0.5, which fills the crop
-    wide = off.model_copy(update={"scale": (0.5, 0.7)})
-    rng_a, rng_b = np.random.default_rng(3), np.random.default_rng(3)
-    p_a, p_b = sample_params(rng_a, wide, h, w), sample_params(rng_b, wide.model_copy(update={"zoom_out": True}), h, w)
-    assert p_a == p_b and rng_a.bit_generator.state == rng_b.bit_generator.state
-    assert p_on.resize == (39, 52) and p_on.closer == pytest.approx(0.8)
-    top, left = p_on.crop[:2]
-    assert -9 <= top <= 0 and -12 <= left <= 0
-    out = apply_params(frame, p_on)
-    assert out.depth.shape == (48, 64) and out.rgb.shape == (48, 64, 3)
-    inside = out.depth > 0
-    assert inside.sum() == 39 * 52  # the whole shrunken frame is kept, and only it has depth
-    rows, cols = np.nonzero(inside)
-    assert (rows.min(), cols.min()) == (-top, -left)
-    assert (out.rgb[~inside] == 0).all() and (out.rgb[inside] == 90).all()
-    np.testing.assert_allclose(out.depth[inside], 2.0 / 0.8, rtol=1e-6)
-    k_out = out.intrinsics
-    assert (k_out.width, k_out.height) == (64, 48)
-    sx, sy = 52 / w, 39 / h  # the resize's own factors (the size is rounded up)
-    for v2, u2 in [(-top, -left), (-top + 38, -left + 51), (-top + 20, -left + 33)]:
-        u, v = (u2 + left + 0.5) / sx - 0.5, (v2 + top + 0.5) / sy - 0.5  # where the pixel came from
-        x_before, y_before = 2.0 * (u - k.cx) / k.fx, 2.0 * (v - k.cy) / k.fy
-        x_after = out.depth[v2, u2] * (u2 - k_out.cx) / k_out.fx
-        y_after = out.depth[v2, u2] * (v2 - k_out.cy) / k_out.fy
-        assert (x_after, y_after) == (pytest.approx(x_before), pytest.approx(y_before))

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from conftest import REPO, run_cli
 
-from model.novelty import read_poses, view_novelty
+from lab.novelty import read_poses, view_novelty
 
 
 def _pose(x: float, yaw_deg: float = 0.0) -> np.ndarray:
@@ -35,10 +35,10 @@ def test_the_command_reads_7scenes_pose_files(tmp_path):
     for n, x in enumerate([0.0, 0.1, 0.2, 1.2]):
         np.savetxt(tmp_path / f"frame-{n:06d}.pose.txt", _pose(x))
     assert read_poses(tmp_path, "0-1").shape == (2, 4, 4)
-    table = run_cli("novelty", str(tmp_path), "0-1:2", "0-1:3").stdout
+    table = run_cli("novelty", str(tmp_path), "0-1:2", "0-1:3", package="lab").stdout
     assert "| 0-1 | 2 | 1 | 0.10 | 0.0 |" in table and "| 0-1 | 3 | 1 | 1.10 | 0.0 |" in table
     bad = subprocess.run(
-        [sys.executable, "-m", "model", "novelty", str(tmp_path), "0-1:2", "0-1"],
+        [sys.executable, "-m", "lab", "novelty", str(tmp_path), "0-1:2", "0-1"],
         cwd=REPO,
         capture_output=True,
         text=True,

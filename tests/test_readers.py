@@ -11,13 +11,13 @@ from conftest import SEVEN_SCENES, TUM_FRAME, save_png16
 from PIL import Image
 from scipy.io import savemat
 
-from model.config import DataSource
-from model.data.frames import parse_frame_ranges, read_depth_png
-from model.data.manifest import ManifestReader
-from model.data.nyu import NYU_CAMERA, NyuReader
-from model.data.sevenscenes import SevenScenesReader
-from model.data.sources import open_source
-from model.data.tum import TUM_CAMERAS, TumReader, associate
+from trainer.config import DataSource
+from trainer.data.frames import parse_frame_ranges, read_depth_png
+from trainer.data.manifest import ManifestReader
+from trainer.data.nyu import NYU_CAMERA, NyuReader
+from trainer.data.sevenscenes import SevenScenesReader
+from trainer.data.sources import open_source
+from trainer.data.tum import TUM_CAMERAS, TumReader, associate
 
 
 def _rgb(h: int, w: int, seed: int) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The colour-weighted median that refines a prediction at inference (model.refine)."""
+"""The colour-weighted median that refines a prediction at inference (trainer.refine)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,10 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from model.config import GeneratorConfig
-from model.networks import GlobalGenerator
-from model.refine import ColourGuidedUpsample, ColourWeightedMedian, sorting_network
+from contract.spec import GeneratorSpec, InferenceSettings, parse_inference_options
+from trainer.inference import InferenceGraph
+from trainer.networks import GlobalGenerator
+from trainer.refine import ColourWeightedMedian, sorting_network
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 5, 9, 12])
@@ -87,81 +88,29 @@ def test_radius_zero_is_the_identity():
     assert ColourWeightedMedian(0, 0.1)(depth, torch.rand(1, 3, 6, 7)) is depth
 
 
-def test_the_generator_refines_at_inference_only_with_the_same_weights():
-    plain_config = GeneratorConfig(ngf=4, n_downsample=2, n_blocks=1, work_scale=2)
+def test_the_graph_refines_at_inference_only_with_the_same_weights():
     torch.manual_seed(0)
-    plain = GlobalGenerator(plain_config).eval()
-    refined = GlobalGenerator(plain_config.run_as({"median_radius": 1, "median_sigma": 0.2})).eval()
-    assert refined.load_state_dict(plain.state_dict()).missing_keys == []  # no weights of its own
+    generator = GlobalGenerator(GeneratorSpec(ngf=4, n_downsample=2, n_blocks=1, work_scale=2)).eval()
+    plain = InferenceGraph(generator, InferenceSettings()).eval()
+    refined = InferenceGraph(generator, InferenceSettings(median_radius=1, median_sigma=0.2)).eval()
+    assert refined.state_dict().keys() == plain.state_dict().keys()  # no weights of its own
     x = torch.rand(1, 3, 32, 48) * 2 - 1
     with torch.inference_mode():
         small = F.avg_pool2d(x, 2)
-        # Training's path (at the working scale) is untouched; inference refines before upsampling.
-        torch.testing.assert_close(refined(small, at_working_scale=True), plain(small, at_working_scale=True))
         expected = F.interpolate(
-            ColourWeightedMedian(1, 0.2)(plain(small, at_working_scale=True), small), scale_factor=2.0, mode="bilinear"
+            ColourWeightedMedian(1, 0.2)(generator(small), small), scale_factor=2.0, mode="bilinear"
         )
         torch.testing.assert_close(refined(x), expected)
         assert not torch.equal(refined(x), plain(x))
+        torch.testing.assert_close(torch.jit.script(refined)(x), refined(x))
 
 
-def test_only_inference_settings_change_after_training():
-    config = GeneratorConfig(ngf=4, n_downsample=2, n_blocks=1)
-    assert config.run_as({"median_radius": 2}).median_radius == 2
-    with pytest.raises(ValueError, match="shape the weights"):
-        config.run_as({"ngf": 8})
+def test_inference_options_are_checked_by_name_and_value():
+    assert parse_inference_options(["median_radius=2", "median_sigma=0.2"]) == {"median_radius": 2, "median_sigma": 0.2}
+    assert InferenceSettings().updated({"median_spacing": 4}).median_spacing == 4
+    with pytest.raises(ValueError, match="expected KEY=VALUE with KEY one of"):
+        parse_inference_options(["ngf=8"])  # shapes the weights: not an inference setting
     with pytest.raises(ValueError, match="median_radius"):
-        config.run_as({"median_radius": -1})
-    assert config.run_as({"upsample_sigma": 0.2}).upsample_sigma == 0.2
-    with pytest.raises(ValueError, match="upsample_sigma"):
-        config.run_as({"upsample_sigma": -0.1})
-
-
-@pytest.mark.parametrize("scale", [2, 3])
-def test_guided_upsampling_with_a_wide_colour_scale_is_bilinear_interpolation(scale):
-    """Every colour weighs alike, so only the taps' tents are left: the sub-pixel phases and borders match."""
-    generator = torch.Generator().manual_seed(1)
-    depth = torch.rand(2, 1, 5, 7, generator=generator)
-    rgb = torch.rand(2, 3, 5 * scale, 7 * scale, generator=generator) * 2 - 1
-    upsampled = ColourGuidedUpsample(scale, 1e4)(depth, F.avg_pool2d(rgb, scale), rgb)
-    bilinear = F.interpolate(depth, scale_factor=float(scale), mode="bilinear", align_corners=False)
-    torch.testing.assert_close(upsampled, bilinear, rtol=0, atol=1e-6)
-
-
-def test_guided_upsampling_puts_a_step_on_the_photo_s_edge():
-    """A step between working-scale pixels 1 and 2: bilinear makes a ramp, the colours place it."""
-    depth = torch.tensor([0.0, 0.0, 1.0, 1.0]).view(1, 1, 1, 4).repeat(1, 1, 2, 1)
-    rgb = torch.tensor([-1.0] * 4 + [1.0] * 4).view(1, 1, 1, 8).repeat(1, 3, 4, 1)  # dark left half, light right
-    small = F.avg_pool2d(rgb, 2)
-    guided = ColourGuidedUpsample(2, 0.1)(depth, small, rgb)
-    expected = torch.tensor([0.0] * 4 + [1.0] * 4).expand(1, 1, 4, 8)
-    torch.testing.assert_close(guided, expected, rtol=0, atol=1e-6)
-    ramp = ColourGuidedUpsample(2, 0.0)(depth, small, rgb)  # sigma 0: plain bilinear
-    assert ramp[0, 0, 0].tolist() == [0.0, 0.0, 0.0, 0.25, 0.75, 1.0, 1.0, 1.0]
-
-
-def test_guided_upsampling_never_divides_by_an_underflowed_weight():
-    """Colours far from every tap's would underflow exp(); weights are measured from the closest colour."""
-    depth = torch.tensor([[[[0.2, 0.8]]]])
-    small = torch.tensor([-1.0, 1.0]).view(1, 1, 1, 2).expand(1, 3, 1, 2)
-    rgb = torch.full((1, 3, 2, 4), 1.0)
-    rgb[..., 1] = -0.9  # closest to the left tap, by far from both at sigma 0.01
-    out = ColourGuidedUpsample(2, 0.01)(depth, small, rgb)
-    assert torch.isfinite(out).all()
-    assert out[0, 0, 0, 1].item() == pytest.approx(0.2)
-
-
-def test_the_generator_upsamples_by_colour_at_inference_only_with_the_same_weights():
-    plain_config = GeneratorConfig(ngf=4, n_downsample=2, n_blocks=1, work_scale=2, median_radius=1)
-    torch.manual_seed(0)
-    plain = GlobalGenerator(plain_config).eval()
-    guided = GlobalGenerator(plain_config.run_as({"upsample_sigma": 0.2})).eval()
-    assert guided.load_state_dict(plain.state_dict()).missing_keys == []
-    x = torch.rand(1, 3, 32, 48) * 2 - 1
-    with torch.inference_mode():
-        small = F.avg_pool2d(x, 2)
-        torch.testing.assert_close(guided(small, at_working_scale=True), plain(small, at_working_scale=True))
-        refined = ColourWeightedMedian(1, 0.1)(plain(small, at_working_scale=True), small)
-        torch.testing.assert_close(guided(x), ColourGuidedUpsample(2, 0.2)(refined, small, x))
-        torch.testing.assert_close(plain(x), F.interpolate(refined, scale_factor=2.0, mode="bilinear"))
-        assert not torch.equal(guided(x), plain(x))
+        parse_inference_options(["median_radius=-1"])
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        parse_inference_options(["median_radius"])

@@ -11,12 +11,12 @@ import pytest
 import yaml
 from conftest import SEVEN_SCENES, run_cli
 
-from model.config import ColourCamera, DataSource
-from model.data.frames import Frame
-from model.data.sources import open_source
-from model.evaluate import evaluate_frames
-from model.geometry import Intrinsics
-from model.registration import (
+from contract.geometry import ColourCamera, Intrinsics
+from trainer.config import DataSource
+from trainer.data.frames import Frame
+from trainer.data.sources import open_source
+from trainer.evaluate import evaluate_frames
+from trainer.registration import (
     alignment,
     colour_coordinates,
     depth_to_colour,
@@ -179,7 +179,7 @@ def test_calibrate_fits_the_real_kinect_pair_better_than_one_camera():
 def test_evaluate_refuses_a_malformed_colour_camera(tmp_path):
     args = ["evaluate", str(tmp_path), "--format", "7scenes", "--root", str(SEVEN_SCENES), "--frames", "850"]
     result = subprocess.run(
-        [sys.executable, "-m", "model", *args, "--colour-camera", "{fx: 530}"], capture_output=True, text=True
+        [sys.executable, "-m", "cli", *args, "--colour-camera", "{fx: 530}"], capture_output=True, text=True
     )
     assert result.returncode == 2
     assert "--colour-camera" in result.stderr and "fy" in result.stderr

@@ -1,10 +1,10 @@
-"""``rgb2cloud report``: quality.md from a published model, a compared checkpoint and real frames."""
+"""``rgb2cloud-lab report``: quality.md from a published model, a compared checkpoint and real frames."""
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -16,22 +16,24 @@ import yaml
 from conftest import REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, run_cli
 from PIL import Image
 
-from model.config import GeneratorConfig, complete_config, load_config
-from model.data.manifest import ManifestReader
-from model.data.sevenscenes import SevenScenesReader
-from model.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
-from model.render import render_points
-from model.report import (
+from contract.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
+from contract.spec import GeneratorSpec
+from lab.records import ScoreRecord, record_config
+from lab.render import render_points
+from lab.report import (
     ReportInputs,
     _compared,
-    _generator_shape,
-    _selection_section,
+    _experiments_section,
+    _generator_words,
     build_report,
-    colour_camera_flag,
     colour_camera_of,
     config_diff,
-    published_checkpoint,
 )
+from trainer.config import complete_config, load_config
+from trainer.data.manifest import ManifestReader
+from trainer.data.sevenscenes import SevenScenesReader
+
+SHIPPED_CONFIG = REPO / "configs" / "rgb2cloud-7scenes-0.8.0.yaml"
 
 
 def write_unseen_manifest(path: Path) -> Path:
@@ -44,9 +46,9 @@ def write_unseen_manifest(path: Path) -> Path:
 
 
 def refused(*args: str) -> str:
-    """``rgb2cloud ARGS`` that must fail: its output, to check the message."""
-    result = subprocess.run([sys.executable, "-m", "model", *args], cwd=REPO, capture_output=True, text=True)
-    assert result.returncode != 0, f"rgb2cloud {' '.join(args)} succeeded"
+    """``rgb2cloud-lab ARGS`` that must fail: its output, to check the message."""
+    result = subprocess.run([sys.executable, "-m", "lab", *args], cwd=REPO, capture_output=True, text=True)
+    assert result.returncode != 0, f"rgb2cloud-lab {' '.join(args)} succeeded"
     return result.stdout + result.stderr
 
 
@@ -66,16 +68,14 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
         "0-3",
         "--test-frames",
         "850-851",
-        "--recipe",
-        str(REPO / "configs" / "7scenes-default.train.sh"),
         "--out",
         str(out),
+        package="lab",
     )
     text = (out / "quality.md").read_text()
-    # The training recipe is quoted verbatim, and the follow-up commands use the card's run folder.
-    assert (REPO / "configs" / "7scenes-default.train.sh").read_text().strip() in text
+    # The commands that reproduce it use the card's run folder and the model's own config file.
     run = json.loads((registry / "tiny" / "0.1.0" / "card.json").read_text())["training"]["config"]["train"]["out_dir"]
-    assert f"rgb2cloud evaluate {run}/checkpoints/best.pt" in text
+    assert "rgb2cloud train configs/tiny-0.1.0.yaml" in text and f"rgb2cloud evaluate {run}/checkpoints/best.pt" in text
     for row in ("tiny 0.1.0 (ONNX)", "eager checkpoint", "baseline: constant", "per-pixel train median", "paper (TUM"):
         assert row in text
     assert "non-commercial" in text and "850-851" in text
@@ -85,20 +85,13 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
     assert abs(published["rel"] - rows["eager checkpoint"]["rel"]) < 1e-4
     assert published["images"] == 2
     # The scale diagnostic beside the published row, from the same predictions.
-    assert published["median_scaled"]["images"] == 2 and published["median_ratio"]["mean"] > 0
-    assert (
-        f"per test image, the ground-truth median over the predicted one is {published['median_ratio']['mean']:.3f}"
-        in text
-    )
+    ratio = published["median_scaled"]["ratio"]["mean"]
+    assert published["median_scaled"]["images"] == 2 and ratio > 0
+    assert f"per test image, the ground-truth median over the predicted one is {ratio:.3f}" in text
     # Compared rows are scored on the unseen scene too.
-    unseen_section = text[text.index("## Generalisation") : text.index("## Reproduce")]
-    assert "| eager checkpoint |" in unseen_section
-    # Validation and test views' distance from the training views, from the real poses.
-    selection = text[text.index("## Model selection") : text.index("## Ablation")]
-    assert "| 0-3 | 0-3 | 4 | 0.00 | 0.0 | validation: " in selection and "validation: eager checkpoint |" in selection
-    assert "| 0-3 | 850-851 | 2 |" in selection and "test split" in selection
-    # Same training config apart from the output folder.
-    assert "(same training config)" in text
+    assert "| eager checkpoint |" in text[text.index("## A room it never saw") : text.index("## Experiments")]
+    experiments = text[text.index("## Experiments") : text.index("## Reproduce")]
+    assert "| eager checkpoint (`" in experiments and "| (same training config) |" in experiments
     local = ("7scenes-samples.png", "7scenes-pointcloud.png", "unseen-sample.png", "unseen-pointcloud.png")
     for name in ("pc_rmse_curve.png", *(f"local/{n}" for n in local)):
         assert Image.open(out / "quality" / name).size[0] > 100
@@ -122,9 +115,8 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
     text = build_report(inputs).read_text()
     rows_again = json.loads((again / "quality" / "metrics.json").read_text())["rows"]
     assert rows_again["stored"] == rows["eager checkpoint"]
-    assert f"stored score of `{trained_checkpoint}`" in text and "(same training config)" in text
-    assert "marked as stored scores" in text and "marked as stored scores" not in (out / "quality.md").read_text()
-    assert "It draws 2 model(s)" in text  # the stored per-image scores still make a curve
+    assert f"| stored ([record]({os.path.relpath(stored, again)})) | (same training config) |" in text
+    assert "are kept (2 in all)" in text  # the stored per-image scores still make a curve
     # A score made on other frames is refused, not shown beside this split's rows.
     with pytest.raises(ValueError, match="scored on"):
         build_report(dataclasses.replace(inputs, test_frames="850-850"))
@@ -149,7 +141,7 @@ def test_a_run_scored_elsewhere_is_stored_as_the_record_the_report_would_make(tr
     ]
     record_args += ["--unseen-manifest", str(unseen), "--config", str(config), "-s", "train.steps=6"]
     record_args += ["-s", "generator.work_scale=2", "--source", "a tiny run", "--out", str(tmp_path / "compared")]
-    run_cli("record", "Scored elsewhere", *record_args)
+    run_cli("record", "Scored elsewhere", *record_args, package="lab")
     stored = tmp_path / "compared" / "scored-elsewhere.json"
 
     inputs = ReportInputs(trained_checkpoint, SEVEN_SCENES, unseen, {}, tmp_path / "docs", test_frames="850-851")
@@ -207,40 +199,44 @@ def test_a_run_trained_on_registered_depth_is_scored_through_its_colour_camera(t
     assert through.unseen_metrics == pytest.approx(raw.unseen_metrics)
     assert colour_camera_of(through.config, SEVEN_SCENES).fx == 530.0
     assert colour_camera_of(raw.config, SEVEN_SCENES) is None
-    assert colour_camera_flag(colour_camera_of(through.config, SEVEN_SCENES)) == f" --colour-camera '{camera}'"
-
-
-def test_a_refit_without_validation_frames_publishes_its_last_checkpoint():
-    config = load_config(REPO / "configs" / "7scenes-default.yaml").model_dump(mode="json")
-    assert published_checkpoint(config) == "runs/7scenes-dropout/checkpoints/best.pt"
-    config["data"]["val"] = []
-    assert published_checkpoint(config) == "runs/7scenes-dropout/checkpoints/last.pt"
-
-
-def test_the_selection_section_says_when_the_published_model_is_a_refit(tmp_path):
-    chosen = load_config(REPO / "configs" / "7scenes-default.yaml").model_dump(mode="json")
-    chosen["data"]["train"][0]["frames"], chosen["data"]["val"][0]["frames"] = "0-3", "6-7"
-    refit = copy.deepcopy(chosen)
-    refit["data"]["train"][0]["frames"], refit["data"]["val"] = "0-7", []
-    inputs = ReportInputs(REPO, SEVEN_SCENES, REPO, {}, tmp_path, test_frames="850-851")
-    text = "\n".join(_selection_section(inputs, {"refit": refit, "chosen": chosen}))
-    assert "| 0-3 | 6-7 | 2 |" in text and "validation: chosen |" in text
-    assert "| 0-7 | 850-851 | 2 |" in text and "refit on the train frames 0-7" in text
-    # A published model chosen on its own validation frames gets no such sentence.
-    assert "refit" not in "\n".join(_selection_section(inputs, {"chosen": chosen}))
+    assert colour_camera_of(through.config, SEVEN_SCENES).flow() == camera
 
 
 def test_the_generator_line_names_every_option_that_changes_the_output():
-    plain = GeneratorConfig(ngf=16, n_downsample=3, n_blocks=2, work_scale=2)
-    assert _generator_shape(plain) == "16 filters, 3 downsamplings, 2 residual blocks, working scale 1/2 of the input"
-    assert _generator_shape(plain.model_copy(update={"dilations": [1, 1]})) == _generator_shape(plain)
-    full = plain.model_copy(update={"dilations": [1, 4], "skips": True, "global_offset": True, "flip_average": True})
-    full = full.run_as({"median_radius": 2, "median_sigma": 0.2, "median_spacing": 4})
-    assert _generator_shape(full) == (
-        "16 filters, 3 downsamplings, 2 residual blocks (first convolutions dilated 1, 4), U-Net skips, "
-        "a per-image depth offset pooled from the bottleneck, working scale 1/2 of the input, "
-        "flip-averaged, colour-weighted median 5x5 taps 4 px apart, sigma 0.2"
+    plain = GeneratorSpec(ngf=16, n_downsample=3, n_blocks=2, work_scale=2)
+    assert _generator_words(plain) == "16 filters, 3 downsamplings, 2 residual blocks, working scale 1/2 of the input"
+    assert _generator_words(plain.model_copy(update={"dilations": [1, 1]})) == _generator_words(plain)
+    assert _generator_words(plain.model_copy(update={"dilations": [1, 4]})) == (
+        "16 filters, 3 downsamplings, 2 residual blocks (first convolutions dilated 1, 4), "
+        "working scale 1/2 of the input"
     )
+
+
+def test_an_experiment_with_a_retired_option_still_says_what_it_changed():
+    """Records are history: a run that turned on an option since retired still reads, the option named."""
+    base = complete_config(load_config(SHIPPED_CONFIG).model_dump(mode="json"))
+    old = json.loads(json.dumps(base))
+    old["optim"]["ema"] = 0.999  # as a weight-average run of the time stored it
+    old["generator"]["skips"] = False
+    old["loss"]["l1_depth"] = 300.0
+    assert record_config(old) == ({**base, "loss": {**base["loss"], "l1_depth": 300.0}}, {"optim.ema": 0.999})
+    metrics = {"rel": 0.12, "delta1": 0.9}
+    record = ScoreRecord(
+        source="runs/x",
+        config=old,
+        split="s",
+        min_m=0.1,
+        max_m=10,
+        unseen="u",
+        test=metrics,
+        unseen_metrics=metrics,
+        scored="then",
+    )
+    lines = _experiments_section(base, {"weight average": record}, {"weight average": Path("quality/compared/x.json")})
+    assert (
+        "| weight average ([record](quality/compared/x.json)) | `optim.ema`: 0.999 (retired); "
+        "`loss.l1_depth`: 100.0 → 300.0 | 0.120 | 0.900 |"
+    ) in lines
 
 
 def test_config_diff_names_changed_leaves():
@@ -250,11 +246,16 @@ def test_config_diff_names_changed_leaves():
 
 
 def test_a_key_added_since_an_older_run_reads_as_its_default():
-    today = load_config(REPO / "configs" / "7scenes-default.yaml").model_dump(mode="json")
-    older = copy.deepcopy(today)
-    del older["data"]["transform"]["rotate_deg"]  # saved before the key existed
+    today = load_config(SHIPPED_CONFIG).model_dump(mode="json")
+    older = json.loads(json.dumps(today))
+    del older["inference"]  # saved before the section existed
     older["generator"]["dropout"] = 0.0
-    assert config_diff(complete_config(today), complete_config(older)) == ["`generator.dropout`: 0.5 → 0.0"]
+    assert config_diff(complete_config(today), complete_config(older)) == [
+        "`generator.dropout`: 0.5 → 0.0",
+        "`inference.median_radius`: 2 → 0",
+        "`inference.median_sigma`: 0.2 → 0.1",
+        "`inference.median_spacing`: 4 → 1",
+    ]
 
 
 def test_render_turns_about_the_centre_and_nearest_point_wins():

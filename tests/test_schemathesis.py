@@ -8,7 +8,8 @@ import sys
 from pathlib import Path
 
 from conftest import REPO
-from service_server import running_service
+
+from app.process import running_service
 
 
 def test_schemathesis_finds_no_server_error(registry):

@@ -19,9 +19,10 @@ import pytest
 from conftest import REPO, TUM_FRAME
 from PIL import Image
 from plyfile import PlyData
-from service_server import running_service, server_timing
 
+from app.client import server_timing
 from app.loading import load_model
+from app.process import running_service
 from app.settings import Settings
 
 ALLOWED_ORIGIN = "https://viewer.example"

@@ -11,10 +11,6 @@ import torch
 from conftest import REPO, run_cli, tiny_config, write_config
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from model.checkpoint import load_generator
-from model.config import OptimConfig
-from model.train import update_average
-
 
 def _scalars(run_dir, tag):
     acc = EventAccumulator(str(run_dir / "tensorboard"))
@@ -40,7 +36,7 @@ def test_overfits_a_handful_of_frames(tmp_path):
 
 
 def test_resume_repeats_the_uninterrupted_run(tmp_path):
-    overrides = {"train": {"steps": 8, "checkpoint_every": 4}, "generator": {"dropout": 0.5}, "optim": {"ema": 0.9}}
+    overrides = {"train": {"steps": 8, "checkpoint_every": 4}, "generator": {"dropout": 0.5}}
     straight = write_config(tmp_path / "a.yaml", tiny_config(tmp_path / "a", **overrides))
     run_cli("train", str(straight))
 
@@ -51,36 +47,12 @@ def test_resume_repeats_the_uninterrupted_run(tmp_path):
     a = torch.load(tmp_path / "a/checkpoints/last.pt", weights_only=True)
     b = torch.load(tmp_path / "b/checkpoints/last.pt", weights_only=True)
     assert a["step"] == b["step"] == 8
-    for net in ("generator", "discriminator", "generator_ema"):
+    for net in ("generator", "discriminator"):
         for name, tensor in a[net].items():
             assert torch.equal(tensor, b[net][name]), f"{net}.{name} differs after resume"
     summary_a = json.loads((tmp_path / "a/summary.json").read_text())
     summary_b = json.loads((tmp_path / "b/summary.json").read_text())
     assert summary_a["rank_weight_sha256"] == summary_b["rank_weight_sha256"]
-
-
-def test_a_weight_average_is_what_the_checkpoint_publishes(tmp_path):
-    config = write_config(
-        tmp_path / "c.yaml", tiny_config(tmp_path / "run", train={"steps": 6, "val_every": 6}, optim={"ema": 0.5})
-    )
-    run_cli("train", str(config))
-    assert set(_scalars(tmp_path / "run", "val_raw/rel")) == {0, 6}  # the raw weights, scored beside
-    state = torch.load(tmp_path / "run/checkpoints/last.pt", weights_only=True)
-    raw, average = state["generator"], state["generator_ema"]
-    assert raw.keys() == average.keys()
-    assert any(not torch.equal(raw[k], average[k]) for k in raw), "the average never left the raw weights"
-    generator, _, _ = load_generator(tmp_path / "run/checkpoints/last.pt")
-    for name, tensor in generator.state_dict().items():
-        assert torch.equal(tensor, average[name]), name
-
-
-def test_update_average_is_an_exponential_moving_average():
-    average, net = torch.nn.Linear(2, 1), torch.nn.Linear(2, 1)
-    before = average.weight.detach().clone()
-    update_average(average, net, 0.75)
-    assert torch.allclose(average.weight, 0.75 * before + 0.25 * net.weight)
-    assert OptimConfig(ema=0.999).ema_at(0) == 0.1  # the ramp: the random start fades fast
-    assert OptimConfig(ema=0.999).ema_at(100_000) == 0.999
 
 
 def test_resume_on_other_settings_records_each_stretch_of_hardware(tmp_path):
@@ -93,22 +65,37 @@ def test_resume_on_other_settings_records_each_stretch_of_hardware(tmp_path):
     assert torch.load(tmp_path / "c/checkpoints/last.pt", weights_only=True)["hardware"] == hardware
 
 
-def test_a_checkpoint_saved_before_a_key_existed_still_resumes(tmp_path):
+def test_a_checkpoint_saved_before_options_were_retired_still_resumes(tmp_path):
     config = write_config(tmp_path / "c.yaml", tiny_config(tmp_path / "run", train={"steps": 4, "checkpoint_every": 2}))
     run_cli("train", str(config), "-s", "train.steps=2")
     last = tmp_path / "run/checkpoints/last.pt"
     state = torch.load(last, weights_only=True)
-    del state["config"]["generator"]["flip_average"]  # as written before the key was added
+    # As written then: retired options at their off values, inference settings inside the generator.
+    saved = state["config"]
+    saved["generator"] |= {"skips": False, "flip_average": False, "upsample_sigma": 0.0, "median_radius": 0}
+    del saved["inference"]
+    saved["optim"]["ema"] = 0.0
+    saved["data"]["transform"] |= {"rotate_deg": 0.0, "zoom_depth": False, "zoom_out": False}
     torch.save(state, last)
     run_cli("train", str(config), "--resume")
     assert torch.load(last, weights_only=True)["step"] == 4
+
+
+def test_a_config_that_turns_on_a_retired_option_is_refused_by_name(tmp_path):
+    config = write_config(tmp_path / "c.yaml", tiny_config(tmp_path / "run", optim={"ema": 0.9}))
+    result = subprocess.run(
+        [sys.executable, "-m", "cli", "train", str(config)], cwd=REPO, capture_output=True, text=True
+    )
+    assert result.returncode == 1
+    assert result.stderr.startswith("error: ") and "retired options {'optim.ema': 0.9}" in result.stderr
+    assert "Traceback" not in result.stderr
 
 
 def test_resume_refuses_a_different_network(tmp_path):
     config = write_config(tmp_path / "c.yaml", tiny_config(tmp_path / "run", train={"steps": 2}))
     run_cli("train", str(config))
     result = subprocess.run(
-        [sys.executable, "-m", "model", "train", str(config), "--resume", "-s", "generator.ngf=16"],
+        [sys.executable, "-m", "cli", "train", str(config), "--resume", "-s", "generator.ngf=16"],
         cwd=REPO,
         capture_output=True,
         text=True,
@@ -130,7 +117,7 @@ def test_ddp_two_cpu_processes_end_with_identical_weights(tmp_path):
             "--nproc_per_node",
             "2",
             "-m",
-            "model",
+            "cli",
             "train",
             str(config),
             "-s",

@@ -1,0 +1,197 @@
+"""The ``rgb2cloud`` command line: train, evaluate, export, baselines, calibrate, client.
+
+Each command parses its options, calls one function of the trainer or the client,
+and prints. Heavy imports happen inside each command, so ``rgb2cloud --help`` is
+instant and ``rgb2cloud client`` works in the torch-free serving install.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+if TYPE_CHECKING:
+    from contract.geometry import ColourCamera
+
+Inference = Annotated[
+    list[str],
+    typer.Option(
+        help="KEY=VALUE: run the weights with this inference setting instead of the model's own, e.g. "
+        "median_radius=0 (repeatable; the settings are contract.spec.InferenceSettings)"
+    ),
+]
+ColourCameraOption = Annotated[
+    str | None,
+    typer.Option(
+        help="for a model trained on registered depth: the colour camera beside the ground truth's depth "
+        "camera, as the data config writes it, e.g. '{fx: 530, fy: 530, cx: 314.5, cy: 239, baseline_m: 0.009}' "
+        "(rgb2cloud calibrate); each ground-truth pixel is compared with the prediction where the photo sees "
+        "the same point"
+    ),
+]
+
+app = typer.Typer(help="rgb2cloud: metric depth and point clouds from one RGB image.", no_args_is_help=True)
+
+
+@app.command()
+def train(
+    config: Annotated[Path, typer.Argument(help="YAML run config", exists=True, dir_okay=False)],
+    set_: Annotated[list[str], typer.Option("--set", "-s", help="override, e.g. -s train.steps=2000")] = [],  # noqa: B006
+    resume: Annotated[bool, typer.Option(help="continue from <out_dir>/checkpoints/last.pt")] = False,
+) -> None:
+    """Train the depth cGAN. Runs alone, or under torchrun for DistributedDataParallel."""
+    from trainer.config import load_config
+    from trainer.train import train as run
+
+    summary = run(load_config(config, set_), resume=resume)
+    if summary["best"]:
+        typer.echo(f"best validation {summary['best']['metrics']} at step {summary['best']['step']}")
+
+
+@app.command()
+def evaluate(
+    model: Annotated[Path, typer.Argument(help="a published version folder, or a checkpoint (.pt)", exists=True)],
+    format: Annotated[str, typer.Option(help="7scenes | tum | nyu | csv")],
+    root: Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)],
+    frames: Annotated[str | None, typer.Option(help="7scenes frame ranges, e.g. 850-999")] = None,
+    split: Annotated[str, typer.Option(help="nyu: train | test | all")] = "all",
+    splits_file: Annotated[Path | None, typer.Option(help="nyu: splits.mat (default: beside the .mat)")] = None,
+    out: Annotated[Path, typer.Option(help="folder for metrics.json, metrics.md and plots")] = Path("runs/eval"),
+    min_depth: Annotated[float, typer.Option(help="valid ground truth from (m)")] = 0.1,
+    max_depth: Annotated[float, typer.Option(help="valid ground truth up to (m)")] = 10.0,
+    samples: Annotated[int, typer.Option(help="rows in samples.png")] = 4,
+    inference: Inference = [],  # noqa: B006
+    colour_camera: ColourCameraOption = None,
+) -> None:
+    """Score a model with the paper's metrics and print the paper's table."""
+    from contract.spec import parse_inference_options
+    from trainer.config import DataSource
+    from trainer.evaluate import evaluate_source
+
+    source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file)
+    colour = parse_colour_camera(colour_camera) if colour_camera else None
+    table = evaluate_source(
+        model, source, out, parse_inference_options(inference), (min_depth, max_depth), samples, colour
+    )
+    typer.echo(table)
+    typer.echo(f"wrote {out}/metrics.json, metrics.md, pc_rmse_curve.png, samples.png")
+
+
+@app.command()
+def export(
+    checkpoint: Annotated[
+        Path,
+        typer.Argument(
+            help="a training checkpoint (.pt), or a published version folder: its weights again, with other "
+            "inference settings",
+            exists=True,
+        ),
+    ],
+    name: Annotated[str, typer.Option(help="model name in the registry")],
+    version: Annotated[str, typer.Option(help="semantic version, e.g. 0.1.0; never reused")],
+    metrics: Annotated[list[Path], typer.Option(help="metrics.json from evaluate (repeatable)", exists=True)],
+    parity_image: Annotated[Path, typer.Option(help="a real RGB image for the parity check", exists=True)],
+    registry: Annotated[Path, typer.Option(help="registry folder")] = Path("weights"),
+    inference: Inference = [],  # noqa: B006
+) -> None:
+    """Export ONNX + TorchScript, check parity with eager PyTorch, publish a version."""
+    from contract.card import load_card
+    from contract.spec import parse_inference_options
+    from trainer.export import export_and_publish
+
+    changes = parse_inference_options(inference)
+    target = export_and_publish(checkpoint, registry, name, version, metrics, parity_image, changes)
+    card = load_card(target)
+    for file_name, digest in card.files.items():
+        typer.echo(f"{file_name}  sha256 {digest}")
+    for check, diff in card.parity.items():
+        typer.echo(f"parity {check}: max abs diff {diff:.2e}")
+    typer.echo(f"published {target}")
+
+
+@app.command()
+def baselines(
+    format: Annotated[str, typer.Option(help="7scenes | tum | nyu | csv")],
+    root: Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)],
+    train_frames: Annotated[str, typer.Option(help="frames the baselines are fitted on, e.g. 0-799")],
+    test_frames: Annotated[str, typer.Option(help="frames they are scored on, e.g. 850-999")],
+    out: Annotated[Path | None, typer.Option(help="also write baselines.json here")] = None,
+    min_depth: Annotated[float, typer.Option(help="valid ground truth from (m)")] = 0.1,
+    max_depth: Annotated[float, typer.Option(help="valid ground truth up to (m)")] = 10.0,
+) -> None:
+    """Score the image-free baselines (train median; per-pixel train median) on a test split."""
+    from trainer.baselines import baselines_table
+    from trainer.config import DataSource
+
+    train_source = DataSource(format=format, root=root, frames=train_frames)
+    test_source = DataSource(format=format, root=root, frames=test_frames)
+    typer.echo(baselines_table(train_source, test_source, (min_depth, max_depth), out))
+
+
+@app.command()
+def calibrate(
+    root: Annotated[Path, typer.Argument(help="a 7-Scenes sequence folder", exists=True, file_okay=False)],
+    frames: Annotated[str, typer.Option(help="frames to fit on (train frames only)")] = "0-799",
+    every: Annotated[int, typer.Option(help="use every Nth of those frames", min=1)] = 40,
+    fx: Annotated[float, typer.Option(help="starting colour focal length (px)")] = 525.0,
+    compare: Annotated[
+        list[str],
+        typer.Option(
+            help="a colour camera (YAML flow, as printed) whose alignment on the same frames is printed "
+            "too: on frames the fit did not use, it says whether one fitted camera generalises better"
+        ),
+    ] = [],  # noqa: B006
+) -> None:
+    """Fit where the colour camera sits beside the depth camera, from colour edges and depth steps."""
+    from trainer.registration import calibrate_sequence
+
+    others = {text: parse_colour_camera(text, "--compare") for text in compare}
+    for line in calibrate_sequence(root, frames, every, fx, others):
+        typer.echo(line)
+
+
+@app.command()
+def client(
+    source: Annotated[Path, typer.Argument(help="an image, or a folder of images", exists=True)],
+    out: Annotated[Path | None, typer.Option("-o", "--out", help="output folder (default: beside each input)")] = None,
+    depth: Annotated[bool, typer.Option(help="write <name>.depth.png (16-bit mm)")] = True,
+    pointcloud: Annotated[bool, typer.Option(help="write <name>.ply")] = False,
+    url: Annotated[str, typer.Option(help="service base URL")] = "http://127.0.0.1:8000",
+    timeout: Annotated[float, typer.Option(help="seconds per request")] = 60.0,
+    retries: Annotated[int, typer.Option(help="retries on 503 or a dropped connection")] = 5,
+    stride: Annotated[int, typer.Option(help="point cloud: keep every stride-th row and column")] = 1,
+) -> None:
+    """Send images to a running service and save depth PNGs and/or PLY point clouds."""
+    from app.client import ClientOptions, run
+
+    kinds = [k for k, on in (("depth", depth), ("pointcloud", pointcloud)) if on]
+    if not kinds:
+        raise typer.BadParameter("nothing to do: enable --depth and/or --pointcloud")
+    options = ClientOptions(url=url, timeout_s=timeout, retries=retries, cloud_params={"stride": stride})
+    failed = 0
+    for image, outcome in run(source, kinds, out, options):
+        failed += outcome.startswith("error")
+        typer.echo(f"{image}: {outcome}", err=outcome.startswith("error"))
+    if failed:
+        raise typer.Exit(1)
+
+
+def parse_colour_camera(text: str, option: str = "--colour-camera") -> ColourCamera:
+    """A colour camera option as YAML flow, the way a data source's ``colour_camera`` is written."""
+    from contract.geometry import ColourCamera
+
+    try:
+        return ColourCamera.from_flow(text)
+    except ValueError as e:
+        raise typer.BadParameter(f"{option} {text!r}: {e}") from e
+
+
+def main() -> None:
+    """Run the CLI; mistakes a user can fix (bad paths, configs, versions) print one line, exit 1."""
+    try:
+        app()
+    except (OSError, ValueError) as e:
+        typer.echo(f"error: {e}", err=True)
+        raise SystemExit(1) from None

@@ -1,0 +1,241 @@
+"""Model cards and the versioned registry. Torch-free: the service loads with this.
+
+A registry is a folder ``<registry>/<name>/<version>/`` holding the exported
+generator files and ``card.json``. The card says everything needed to use and
+trust the weights: a sha256 per file, the generator spec (to check the weights
+against) and the inference settings baked into the exported graph, the input and
+depth encodings, the training camera, the data and its licences, and the metrics
+with their split.
+
+Cards carry a ``schema_version``. Older cards are migrated on read (``migrate_card``),
+never rewritten on disk: their files stay byte for byte what was published.
+
+Versions are immutable: publishing stages into a hidden folder beside the
+target and renames it into place, refusing if the version already exists.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shutil
+import tempfile
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from contract.codec import DepthEncoding
+from contract.geometry import ColourCamera
+from contract.spec import GeneratorSpec, InferenceSettings
+
+CARD_FILE = "card.json"
+ONNX_FILE = "generator.onnx"
+TORCHSCRIPT_FILE = "generator.torchscript.pt"
+SEMVER = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)(?:-([0-9A-Za-z.-]+))?$")
+NAME = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
+SCHEMA_VERSION = 2
+#: Generator options that were measured, rejected and removed, with the value that meant "off".
+#: A schema-1 card may name them at that value; one that turned an option on describes a graph
+#: this code cannot check or reproduce, so it is refused.
+RETIRED_GENERATOR_OPTIONS: dict[str, Any] = {
+    "skips": False,
+    "global_offset": False,
+    "flip_average": False,
+    "upsample_sigma": 0.0,
+}
+
+
+class CardError(ValueError):
+    """A card or its files cannot be trusted; the message names the file and the reason."""
+
+
+class Camera(BaseModel):
+    """Intrinsics of the training data, in pixels of a ``width`` x ``height`` image."""
+
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+    width: int = Field(gt=0)
+    height: int = Field(gt=0)
+
+
+class DataRef(BaseModel):
+    """One dataset a model saw, with the frames used and the licence that binds them."""
+
+    name: str
+    format: str
+    frames: str
+    licence: str = Field(min_length=1)
+
+
+class Metrics(BaseModel):
+    """The paper's metrics on a named split, plus the mean point-cloud RMSE."""
+
+    split: str = Field(min_length=1, description="dataset and frames, e.g. 7scenes-redkitchen 850-999")
+    images: int = Field(gt=0)
+    depth_range_m: tuple[float, float]
+    rel: float
+    rmse: float
+    log10: float
+    delta1: float
+    delta2: float
+    delta3: float
+    pc_rmse_mean: float
+    colour_camera: ColourCamera | None = Field(
+        None,
+        description="set when the prediction was read at this colour camera for each ground-truth depth-camera "
+        "pixel (evaluate --colour-camera, a model trained on registered depth); absent: pixel to pixel",
+    )
+
+
+class Training(BaseModel):
+    data: list[DataRef] = Field(min_length=1)
+    steps: int
+    duration_s: float
+    hardware: str
+    config: dict
+
+
+class ModelCard(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    schema_version: int = SCHEMA_VERSION
+    name: str
+    version: str
+    created: datetime
+    files: dict[str, str] = Field(description="file name -> sha256 hex digest")
+    generator: GeneratorSpec
+    inference: InferenceSettings = Field(description="the settings baked into the exported graph")
+    input_multiple: int
+    input_encoding: str
+    output: str = "1 channel, tanh range [-1, 1]; metres via depth_encoding"
+    depth_encoding: DepthEncoding
+    camera: Camera
+    training: Training
+    metrics: list[Metrics] = Field(min_length=1)
+    trainer_commit: str
+    parity: dict[str, float] = Field(default_factory=dict, description="export vs eager max abs diff")
+    derived_from: str | None = Field(
+        None,
+        description="the published version whose weights these are, exported again with other inference "
+        "settings; its training is this card's training",
+    )
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v: str) -> str:
+        if not NAME.match(v):
+            raise ValueError(f"name {v!r} must match {NAME.pattern}")
+        return v
+
+    @field_validator("version")
+    @classmethod
+    def _version(cls, v: str) -> str:
+        if not SEMVER.match(v):
+            raise ValueError(f"version {v!r} is not a semantic version like 1.2.3")
+        return v
+
+
+def sha256_file(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def version_key(version: str) -> tuple:
+    """Sort key for semantic versions: a pre-release sorts before its release."""
+    m = SEMVER.match(version)
+    if not m:
+        raise ValueError(f"not a semantic version: {version!r}")
+    major, minor, patch, pre = m.groups()
+    return int(major), int(minor), int(patch), pre is None, pre or ""
+
+
+def list_versions(registry: Path, name: str) -> list[str]:
+    """Published versions of ``name``, oldest first (staging folders are hidden)."""
+    folder = Path(registry) / name
+    if not folder.is_dir():
+        return []
+    found = [p.name for p in folder.iterdir() if p.is_dir() and SEMVER.match(p.name)]
+    return sorted(found, key=version_key)
+
+
+def migrate_card(card: dict[str, Any]) -> dict[str, Any]:
+    """A card of any known schema as the current schema's fields (a new dict; the input is untouched).
+
+    Schema 1 kept the inference settings inside ``generator`` beside the architecture, and
+    named options since retired. They move to ``inference``; a retired option at its off
+    value is dropped, and one that was on is a ``ValueError`` that names it.
+    """
+    if not isinstance(card, dict):
+        raise ValueError("expected a JSON object")
+    version = card.get("schema_version", 1)
+    if version == SCHEMA_VERSION:
+        return card
+    if version != 1:
+        raise ValueError(f"schema_version {version} is not one this reader knows (1 to {SCHEMA_VERSION})")
+    generator = dict(card.get("generator", {}))
+    for key, off in RETIRED_GENERATOR_OPTIONS.items():
+        if key in generator and generator.pop(key) != off:
+            raise ValueError(
+                f"generator.{key} is on, and that option was retired; no current version of rgb2cloud runs this card"
+            )
+    inference = {key: generator.pop(key) for key in InferenceSettings.model_fields if key in generator}
+    return {**card, "schema_version": SCHEMA_VERSION, "generator": generator, "inference": inference}
+
+
+def load_card(version_dir: Path) -> ModelCard:
+    """Read, migrate and validate ``<version_dir>/card.json``; any problem is a ``CardError`` naming the file."""
+    path = Path(version_dir) / CARD_FILE
+    try:
+        return ModelCard.model_validate(migrate_card(json.loads(path.read_bytes())))
+    except FileNotFoundError as e:
+        raise CardError(f"{path}: missing") from e
+    except ValueError as e:  # json and pydantic errors are ValueErrors too
+        raise CardError(f"{path}: not a valid model card: {e}") from e
+
+
+def verify_files(version_dir: Path, card: ModelCard) -> None:
+    """Check that every listed file exists with its recorded sha256."""
+    for file_name, expected in card.files.items():
+        path = Path(version_dir) / file_name
+        if not path.is_file():
+            raise CardError(f"{path}: listed in the card but missing")
+        actual = sha256_file(path)
+        if actual != expected:
+            raise CardError(f"{path}: sha256 {actual} does not match the card's {expected}")
+
+
+def publish(registry: Path, card: ModelCard, files: dict[str, Path]) -> Path:
+    """Copy ``files`` into ``<registry>/<name>/<version>/`` with the card; never overwrite.
+
+    The card's ``files`` digests are recomputed here from what was copied, so a
+    card can only ever describe the bytes beside it.
+    """
+    target = Path(registry) / card.name / card.version
+    if target.exists():
+        raise FileExistsError(f"{target} already exists: versions are immutable, publish a new one")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{card.version}.", dir=target.parent))
+    try:
+        digests = {}
+        for file_name, source in files.items():
+            shutil.copyfile(source, staging / file_name)
+            digests[file_name] = sha256_file(staging / file_name)
+        final = card.model_copy(update={"files": digests})
+        (staging / CARD_FILE).write_text(final.model_dump_json(indent=2) + "\n")
+        os.chmod(staging, 0o755)
+        if target.exists():  # lost a race with another publisher
+            raise FileExistsError(f"{target} already exists: versions are immutable, publish a new one")
+        os.rename(staging, target)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return target

@@ -1,0 +1,136 @@
+"""What a generator is (its architecture) apart from how trained weights are run (inference settings).
+
+The two change at different times. ``GeneratorSpec`` is fixed when training starts:
+the weights only fit the network it describes, and a torch-free loader checks an
+exported file against ``weight_shapes``. ``InferenceSettings`` may change on any
+trained weights (``rgb2cloud evaluate`` and ``export`` take ``--inference key=value``):
+a new setting is a field here plus the code that applies it in the exported graph
+(``trainer.inference``), nothing else.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class GeneratorSpec(_Strict):
+    """pix2pixHD's global generator. The paper: 32 filters in the first layer."""
+
+    input_nc: int = 3
+    output_nc: int = 1
+    ngf: int = Field(32, ge=1, description="filters in the first layer")
+    n_downsample: int = Field(4, ge=0, le=6)
+    n_blocks: int = Field(9, ge=0)
+    dropout: float = Field(
+        0.0,
+        ge=0.0,
+        lt=1.0,
+        description="the paper's noise input Z, as pix2pix: dropout in the residual blocks, training only",
+    )
+    work_scale: int = Field(
+        1,
+        ge=1,
+        le=8,
+        description="beyond the paper: the network runs at 1/work_scale of the input's resolution "
+        "(average pool in, bilinear upsample out); training feeds images already at that scale",
+    )
+    dilations: list[int] = Field(
+        default_factory=list,
+        description="beyond the paper: the dilation of each residual block's first convolution "
+        "(one per block; empty = all 1, the paper). Widens what one output pixel sees, for the "
+        "room-scale cues that fix a view's absolute depth, with the same weights and compute",
+    )
+
+    @model_validator(mode="after")
+    def _one_dilation_per_block(self) -> GeneratorSpec:
+        if self.dilations and (len(self.dilations) != self.n_blocks or min(self.dilations) < 1):
+            raise ValueError(
+                f"dilations needs one value >= 1 per residual block ({self.n_blocks}), got {self.dilations}"
+            )
+        return self
+
+    @property
+    def core_multiple(self) -> int:
+        """Height and width the network itself needs, at its working scale."""
+        return 2**self.n_downsample
+
+    @property
+    def input_multiple(self) -> int:
+        """Input height and width must be multiples of this."""
+        return self.core_multiple * self.work_scale
+
+    def weight_shapes(self) -> list[tuple[int, ...]]:
+        """Every convolution's weight shape, in network order, without building the network.
+
+        Lets a torch-free loader check that exported weights match this spec;
+        a trainer test keeps it equal to ``trainer.networks.GlobalGenerator``'s.
+        """
+        ngf = self.ngf
+        shapes = [(ngf, self.input_nc, 7, 7)]
+        shapes += [(ngf * 2 ** (i + 1), ngf * 2**i, 3, 3) for i in range(self.n_downsample)]
+        c = ngf * 2**self.n_downsample
+        shapes += [(c, c, 3, 3)] * (2 * self.n_blocks)
+        # ConvTranspose2d weights are (in, out, k, k).
+        shapes += [
+            (ngf * 2 ** (self.n_downsample - i), ngf * 2 ** (self.n_downsample - i - 1), 3, 3)
+            for i in range(self.n_downsample)
+        ]
+        shapes.append((self.output_nc, ngf, 7, 7))
+        return shapes
+
+
+class InferenceSettings(_Strict):
+    """How trained weights are run: refinements baked into the exported graph, never trained."""
+
+    median_radius: int = Field(
+        0,
+        ge=0,
+        le=3,
+        description="beyond the paper: give each pixel of the network's output (at its working scale) the "
+        "colour-weighted median of the depths in its (2r+1)^2-tap window, so a blurred depth step takes the "
+        "depth of the side whose colour it shares; 0 = off",
+    )
+    median_sigma: float = Field(
+        0.1,
+        gt=0,
+        description="the colour-weighted median's colour scale, in the input's [-1, 1] units: a neighbour "
+        "whose RGB differs by sigma weighs exp(-1/2) of one with the pixel's own colour",
+    )
+    median_spacing: int = Field(
+        1,
+        ge=1,
+        le=4,
+        description="pixels (at the working scale) between the colour-weighted median's taps: 2 reaches twice "
+        "as far at the same cost",
+    )
+
+    def updated(self, changes: dict[str, Any]) -> InferenceSettings:
+        """These settings with ``changes`` applied and validated (an unknown key is an error)."""
+        return InferenceSettings.model_validate({**self.model_dump(), **changes})
+
+    def describe(self) -> str:
+        """The settings that change the output, in words, for labels and reports ('' when none)."""
+        if not self.median_radius:
+            return ""
+        taps = 2 * self.median_radius + 1
+        return f"colour-weighted median {taps}x{taps} taps {self.median_spacing} px apart, sigma {self.median_sigma:g}"
+
+
+def parse_inference_options(options: list[str]) -> dict[str, Any]:
+    """``["median_radius=2", ...]`` -> ``{"median_radius": 2, ...}``, checked against ``InferenceSettings``."""
+    changes: dict[str, Any] = {}
+    for option in options:
+        key, sep, value = option.partition("=")
+        if not sep or key not in InferenceSettings.model_fields:
+            raise ValueError(
+                f"--inference {option!r}: expected KEY=VALUE with KEY one of {list(InferenceSettings.model_fields)}"
+            )
+        changes[key] = value
+    validated = InferenceSettings().updated(changes)
+    return {key: getattr(validated, key) for key in changes}

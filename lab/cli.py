@@ -1,0 +1,99 @@
+"""``rgb2cloud-lab``: report, record, diagnose, novelty. Research commands beside the product's CLI."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+app = typer.Typer(help="rgb2cloud-lab: research tooling for rgb2cloud models.", no_args_is_help=True)
+
+
+@app.command()
+def report(
+    model: Annotated[Path, typer.Argument(help="the published version folder to report on", exists=True)],
+    root: Annotated[Path, typer.Option(help="7-Scenes sequence folder", exists=True, file_okay=False)],
+    unseen: Annotated[Path, typer.Option(help="CSV manifest of a scene never trained on", exists=True, dir_okay=False)],
+    compare: Annotated[
+        list[str], typer.Option(help="LABEL=PATH: a checkpoint, version or stored score (.json) to show beside it")
+    ] = [],  # noqa: B006
+    train_frames: Annotated[str, typer.Option(help="frames the baselines are fitted on")] = "0-799",
+    test_frames: Annotated[str, typer.Option(help="frames everything is scored on")] = "850-999",
+    out: Annotated[Path, typer.Option(help="folder for quality.md and quality/")] = Path("docs"),
+    config: Annotated[
+        Path | None, typer.Option(help="the config that trains the model (default configs/NAME-VERSION.yaml)")
+    ] = None,
+) -> None:
+    """Write quality.md: metrics beside the paper and baselines, curve, samples, experiments, an unseen scene."""
+    from lab.report import ReportInputs, build_report
+
+    pairs = {}
+    for item in compare:
+        name, sep, path = item.rpartition("=")
+        if not sep or not name or not Path(path).exists():
+            raise typer.BadParameter(
+                f"--compare {item!r}: expected LABEL=PATH to an existing checkpoint, version or stored score"
+            )
+        pairs[name] = Path(path)
+    inputs = ReportInputs(model, root, unseen, pairs, out, config, train_frames=train_frames, test_frames=test_frames)
+    typer.echo(f"wrote {build_report(inputs)}")
+
+
+@app.command()
+def record(
+    label: Annotated[str, typer.Argument(help="the report row's label; also names the record file")],
+    test: Annotated[Path, typer.Option(help="metrics.json of `rgb2cloud evaluate` on the test split", exists=True)],
+    unseen: Annotated[Path, typer.Option(help="metrics.json of `rgb2cloud evaluate` on the unseen frame", exists=True)],
+    unseen_manifest: Annotated[Path, typer.Option(help="the --unseen manifest the report runs with", exists=True)],
+    config: Annotated[Path, typer.Option(help="the YAML run config it was trained with", exists=True)],
+    set_: Annotated[list[str], typer.Option("--set", "-s", help="the training command's overrides")] = [],  # noqa: B006
+    source: Annotated[str, typer.Option(help="what was scored, where, and why it is not kept")] = "",
+    out: Annotated[Path, typer.Option(help="folder of stored records")] = Path("docs/quality/compared"),
+) -> None:
+    """Store a run scored elsewhere (say, on a leased GPU) as a record `rgb2cloud-lab report --compare` reads."""
+    from lab.records import store_evaluations
+
+    typer.echo(f"wrote {store_evaluations(label, test, unseen, unseen_manifest, config, set_, source, out)}")
+
+
+@app.command()
+def diagnose(
+    model: Annotated[Path, typer.Argument(help="a published version folder, or a checkpoint (.pt)", exists=True)],
+    format: Annotated[str, typer.Option(help="7scenes | tum | nyu | csv")],
+    root: Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)],
+    frames: Annotated[str | None, typer.Option(help="7scenes frame ranges, e.g. 850-999")] = None,
+    min_depth: Annotated[float, typer.Option(help="valid ground truth from (m)")] = 0.1,
+    max_depth: Annotated[float, typer.Option(help="valid ground truth up to (m)")] = 10.0,
+    colour_camera: Annotated[
+        str | None, typer.Option(help="as rgb2cloud evaluate takes it, for a model trained on registered depth")
+    ] = None,
+) -> None:
+    """Where a model's error is: one wrong distance per view (median scaling) or depth steps (where delta1 fails)."""
+    from contract.geometry import ColourCamera
+    from lab.diagnostics import diagnose_source
+    from trainer.config import DataSource
+
+    source = DataSource(format=format, root=root, frames=frames)
+    colour = ColourCamera.from_flow(colour_camera) if colour_camera else None
+    typer.echo(diagnose_source(model, source, (min_depth, max_depth), colour))
+
+
+@app.command()
+def novelty(
+    root: Annotated[Path, typer.Argument(help="a 7-Scenes sequence folder (frame-NNNNNN.pose.txt)", exists=True)],
+    splits: Annotated[list[str], typer.Argument(help="TRAIN:HELD_OUT frame ranges, e.g. 0-669:720-799")],
+) -> None:
+    """How new each held-out slice's views are to its training frames (from camera poses)."""
+    from lab.novelty import novelty_table
+
+    typer.echo(novelty_table(root, splits))
+
+
+def main() -> None:
+    """Run the CLI; mistakes a user can fix print one line and exit 1."""
+    try:
+        app()
+    except (OSError, ValueError) as e:
+        typer.echo(f"error: {e}", err=True)
+        raise SystemExit(1) from None

@@ -1,0 +1,89 @@
+"""The lab's diagnostics: where a model's error is, measured beside the paper's metrics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import SEVEN_SCENES, run_cli
+
+from contract.geometry import Intrinsics
+from lab.diagnostics import MedianScaled, WhereFails, where_fails_line
+from trainer.data.frames import Frame
+from trainer.evaluate import evaluate_frames
+
+
+def test_median_scaling_diagnostic_separates_one_wrong_distance_from_a_wrong_shape():
+    """A view predicted 25% too far everywhere: raw REL 0.25, median-scaled REL 0, ratio 0.8."""
+    k = Intrinsics(1, 1, 0, 0, 3, 1)
+    frames = [
+        Frame(np.zeros((1, 3, 3), np.uint8), np.array([[1.0, 2.0, 0.0]], np.float32), k, "near"),
+        Frame(np.full((1, 3, 3), 1, np.uint8), np.array([[2.0, 4.0, 3.0]], np.float32), k, "far"),
+    ]
+    truth = {0: frames[0].depth, 1: frames[1].depth}
+
+    def too_far(rgb: np.ndarray) -> np.ndarray:
+        return np.where(truth[int(rgb[0, 0, 0])] > 0, truth[int(rgb[0, 0, 0])] * 1.25, 5.0)
+
+    scaled = MedianScaled(0.1, 10.0)
+    result, per_image, _ = evaluate_frames(too_far, frames, min_m=0.1, max_m=10.0, diagnostics=[scaled])
+    assert result["rel"] == pytest.approx(0.25)
+    assert result["median_scaled"]["rel"] == pytest.approx(0.0, abs=1e-6)
+    assert result["median_scaled"]["delta1"] == 1.0
+    assert result["median_scaled"]["ratio"] == pytest.approx({"mean": 0.8, "std": 0.0})
+    assert [r["median_ratio"] for r in per_image] == pytest.approx([0.8, 0.8])  # the missing pixel is ignored
+    plain, _, _ = evaluate_frames(too_far, frames, min_m=0.1, max_m=10.0)
+    assert "median_scaled" not in plain and plain["rel"] == result["rel"]
+
+
+def test_where_fails_splits_a_blurred_step_from_a_wrong_surface():
+    """A 1 m -> 3 m step blurred over two pixels, plus one wrong pixel on the flat part, counted by hand."""
+    gt = np.array([[1.0, 1, 1, 1, 1, 3, 3, 3, 3, 3, 0]], np.float32)  # the last pixel has no reading
+    pred = gt.copy()
+    pred[0, [4, 5]] = 2.0  # the step, blurred: ratios 2 and 1.5 both fail delta1
+    pred[0, 0] = 2.0  # a wrong surface, far from the step
+    pred[0, 10] = 7.0  # not counted: no ground truth
+    frame = Frame(np.zeros((1, 11, 3), np.uint8), gt, Intrinsics(1, 1, 0, 0, 11, 1), "step")
+    result, _, _ = evaluate_frames(lambda rgb: pred, [frame], min_m=0.1, max_m=10.0, diagnostics=[WhereFails()])
+    # within 3 px of both sides of the step: pixels 2-7, 6 of the 10 valid ones
+    assert result["where_fails"] == pytest.approx(
+        {
+            "pixels_near_steps": 0.6,
+            "fail_rate_near_steps": 2 / 6,
+            "fail_rate_elsewhere": 1 / 4,
+            "failures_near_steps": 2 / 3,
+        }
+    )
+    assert result["delta1"] == pytest.approx(0.7)
+    assert "60.0% of valid pixels" in where_fails_line(result["where_fails"])
+    plain, _, _ = evaluate_frames(lambda rgb: pred, [frame], min_m=0.1, max_m=10.0)
+    assert "where_fails" not in plain
+
+
+def test_where_fails_reports_no_rate_where_nothing_is_counted():
+    flat = np.full((4, 4), 2.0)
+    acc = WhereFails()
+    acc.count(flat, flat, np.ones_like(flat, dtype=bool))
+    assert acc.result() == {
+        "pixels_near_steps": 0.0,
+        "fail_rate_near_steps": None,
+        "fail_rate_elsewhere": 0.0,
+        "failures_near_steps": None,
+    }
+    with pytest.raises(ValueError, match="no valid"):
+        WhereFails().result()
+
+
+def test_diagnose_prints_both_diagnostics_for_a_published_model(registry):
+    stdout = run_cli(
+        "diagnose",
+        str(registry / "tiny" / "0.1.0"),
+        "--format",
+        "7scenes",
+        "--root",
+        str(SEVEN_SCENES),
+        "--frames",
+        "850-851",
+        package="lab",
+    ).stdout
+    assert "| tiny 0.1.0 (ONNX), median-scaled |" in stdout
+    assert "ground-truth/predicted median per image" in stdout and "diagnostic, where delta1 fails" in stdout

@@ -1,0 +1,1 @@
+"""The trainer: networks, losses, data readers, training, evaluation and export (PyTorch)."""

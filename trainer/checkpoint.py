@@ -1,0 +1,72 @@
+"""Checkpoints: everything a run needs to continue exactly, written atomically.
+
+Loading a generator also takes a published version folder, whose TorchScript
+weights and card stand in for a checkpoint that may no longer exist.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from contract.card import TORCHSCRIPT_FILE, load_card, verify_files
+from trainer.config import RunConfig, migrate_config
+from trainer.inference import InferenceGraph
+from trainer.networks import GlobalGenerator
+
+
+def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
+    """Write to a temporary name and rename, so a crash never leaves half a file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: Path) -> dict[str, Any]:
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"{path}: no checkpoint")
+    return torch.load(path, map_location="cpu", weights_only=True)
+
+
+def load_graph(path: Path, inference: dict[str, Any] | None = None) -> tuple[InferenceGraph, RunConfig, dict[str, Any]]:
+    """The inference graph of a checkpoint or a published version, in eval mode, with its run config.
+
+    ``inference`` changes some of its inference settings (``contract.spec.InferenceSettings``),
+    so trained weights can be scored and exported with another inference path; the
+    returned config carries the settings in use.
+
+    A published version folder (checked against its card) gives the weights in its
+    TorchScript file and a state rebuilt from its card, so a version whose training
+    checkpoint is gone can still be run another way and published again.
+    """
+    path = Path(path)
+    state = _published_state(path) if path.is_dir() else load_checkpoint(path)
+    config = RunConfig.model_validate(migrate_config(state["config"]))
+    config.inference = state.get("inference", config.inference).updated(inference or {})
+    generator = GlobalGenerator(config.generator)
+    generator.load_state_dict(state["generator"])  # strict: a spec that does not fit the weights fails loudly
+    return InferenceGraph(generator, config.inference).eval(), config, state
+
+
+def _published_state(version_dir: Path) -> dict[str, Any]:
+    """What a checkpoint holds that a published version can give back: its weights and its training."""
+    card = load_card(version_dir)
+    verify_files(version_dir, card)
+    weights = torch.jit.load(str(version_dir / TORCHSCRIPT_FILE), map_location="cpu").state_dict()
+    # Export writes the inference graph, whose generator's keys start "generator."; a schema-1
+    # card's file is the bare generator, whose keys are the generator's own.
+    generator = {key.removeprefix("generator."): tensor for key, tensor in weights.items()}
+    return {
+        "generator": generator,
+        "inference": card.inference,  # as exported, which may differ from the training config's
+        "config": {**card.training.config, "generator": card.generator.model_dump()},
+        "step": card.training.steps,
+        "train_seconds": card.training.duration_s,
+        "hardware": card.training.hardware,
+        "published": f"{card.name} {card.version}",
+    }

@@ -1,0 +1,228 @@
+"""Score a generator with the paper's metrics and write the reports people read.
+
+Outputs in the chosen folder: ``metrics.json`` (everything, per image too),
+``metrics.md`` (the paper's table with our row beside the paper's), the
+Figure-8 curve ``pc_rmse_curve.png`` and ``samples.png`` (RGB | predicted | truth).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from tqdm import tqdm
+
+from contract.card import ONNX_FILE, load_card, verify_files
+from contract.geometry import ColourCamera
+from contract.runtime import OnnxGenerator
+from trainer.checkpoint import load_graph
+from trainer.config import DataSource
+from trainer.data.frames import Frame
+from trainer.data.sources import describe, open_source
+from trainer.data.transforms import resize_frame
+from trainer.inference import EagerGenerator
+from trainer.metrics import METRIC_NAMES, MetricAccumulator, valid_mask
+from trainer.registration import sample_at_colour
+from trainer.visualize import plot_pc_curve, sample_grid
+
+#: The reference paper's Table 2 (TUM RGB-D) and its mean point-cloud RMSE on TUM.
+PAPER_TUM = {
+    "rel": 0.107,
+    "rmse": 0.548,
+    "log10": 0.047,
+    "delta1": 0.942,
+    "delta2": 0.984,
+    "delta3": 0.990,
+    "pc_rmse_mean": 0.420,
+}
+COLUMNS = (*METRIC_NAMES, "pc_rmse_mean")
+HEADERS = ("REL", "RMSE (m)", "log10", "δ<1.25", "δ<1.25²", "δ<1.25³", "PC RMSE (m)")
+LOWER_IS_BETTER = {"rel", "rmse", "log10", "pc_rmse_mean"}
+
+
+class Diagnostic(Protocol):
+    """Something measured beside the metrics from the same predictions (research tooling supplies these)."""
+
+    name: str
+
+    def add(self, pred: np.ndarray, frame: Frame, valid: np.ndarray) -> dict[str, Any]:
+        """Take one image; return fields for its per-image row (may be empty)."""
+
+    def result(self) -> dict[str, Any]:
+        """The diagnostic over every image, stored under ``name`` in the evaluation's result."""
+
+
+def evaluate_frames(
+    predict: Callable[[np.ndarray], np.ndarray],
+    frames: Sequence[Frame],
+    *,
+    min_m: float,
+    max_m: float,
+    scale: float = 1.0,
+    samples: int = 0,
+    progress: bool = False,
+    colour_camera: ColourCamera | None = None,
+    diagnostics: Sequence[Diagnostic] = (),
+) -> tuple[dict, list[dict], list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    """Predict every frame (resized by ``scale``) and average the per-image metrics.
+
+    ``predict`` maps an HxWx3 uint8 image to HxW metres. Returns (the table row,
+    per-image rows, up to ``samples`` evenly spaced (rgb, prediction, ground
+    truth) triples for a sample grid).
+
+    ``colour_camera``: the ground truth is a depth camera's and the prediction the
+    colour camera's (a model trained on registered depth); each ground-truth pixel
+    is compared with the prediction at the colour pixel that sees the same point
+    (``trainer.registration.sample_at_colour``), so every valid pixel still counts.
+    Each of ``diagnostics`` sees every scored prediction; its result is added to the row.
+    """
+    acc = MetricAccumulator(min_m=min_m, max_m=max_m)
+    per_image, grid = [], []
+    keep = set(np.linspace(0, len(frames) - 1, samples).round().astype(int)) if samples else set()
+    for i in tqdm(range(len(frames)), desc="evaluate", disable=not progress, unit="img"):
+        frame = frames[i]
+        if scale != 1.0:
+            h, w = frame.depth.shape
+            frame = resize_frame(frame, round(h * scale), round(w * scale))
+        pred = predict(frame.rgb)
+        if colour_camera is not None:
+            pred = sample_at_colour(pred, frame.depth, frame.intrinsics, colour_camera.resized(scale))
+        row = acc.add(pred, frame.depth, frame.intrinsics, frame.name)
+        if row:
+            valid = valid_mask(frame.depth, min_m, max_m)
+            for diagnostic in diagnostics:
+                row = {**row, **diagnostic.add(pred, frame, valid)}
+            per_image.append({"name": frame.name, **row})
+        if i in keep:
+            grid.append((frame.rgb, pred, frame.depth))
+    result = acc.result()
+    for diagnostic in diagnostics:
+        result[diagnostic.name] = diagnostic.result()
+    return result, per_image, grid
+
+
+def load_predictor(
+    path: Path, inference: dict[str, Any] | None = None
+) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
+    """A depth predictor and a label from a checkpoint (.pt) or a published version folder.
+
+    A version folder is checked against its card (sha256) and, as exported, run the
+    way the service runs it: ONNX Runtime, then the card's depth encoding. With
+    ``inference`` (other inference settings for the same weights) a version runs
+    eagerly from its TorchScript weights instead, as a checkpoint does.
+    """
+    path = Path(path)
+    if path.is_dir() and not inference:
+        card = load_card(path)
+        verify_files(path, card)
+        runner = OnnxGenerator(path / ONNX_FILE, card.input_multiple)
+        return (lambda rgb: card.depth_encoding.decode(runner.predict_raw(rgb))), f"{card.name} {card.version} (ONNX)"
+    graph, config, state = load_graph(path, inference)
+    runner = EagerGenerator(graph, config.generator.input_multiple)
+    how = config.inference.describe()
+    how = f", {how}" if how else ""
+    if "published" in state:
+        label = f"{state['published']} (eager{how})"
+    else:
+        label = f"rgb2cloud ({_run_name(path)}, step {state['step']}{how})"
+    return (lambda rgb: config.depth.decode(runner.predict_raw(rgb))), label
+
+
+def _run_name(checkpoint: Path) -> str:
+    """``runs/x/checkpoints/last.pt`` -> ``x/last.pt``: which run, and which of its checkpoints."""
+    parent = checkpoint.parent
+    run = parent.parent if parent.name == "checkpoints" else parent
+    return f"{run.name}/{checkpoint.name}"
+
+
+def _fmt(value: float | None) -> str:
+    return "—" if value is None else f"{value:.3f}"
+
+
+def markdown_table(rows: dict[str, dict]) -> str:
+    """The paper's table: one row per model, the paper's columns plus PC RMSE."""
+    lines = ["| model | " + " | ".join(HEADERS) + " |", "|---" * (len(HEADERS) + 1) + "|"]
+    for label, m in rows.items():
+        lines.append(f"| {label} | " + " | ".join(_fmt(m.get(k)) for k in COLUMNS) + " |")
+    return "\n".join(lines)
+
+
+def beats(ours: dict, reference: dict) -> dict[str, bool]:
+    """Per metric, whether ours is strictly better than the reference."""
+    return {k: (ours[k] < reference[k]) if k in LOWER_IS_BETTER else (ours[k] > reference[k]) for k in METRIC_NAMES}
+
+
+def write_report(
+    out_dir: Path,
+    result: dict,
+    per_image: list[dict],
+    grid: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    *,
+    split: str,
+    label: str,
+    depth_range: tuple[float, float],
+    colour_camera: ColourCamera | None = None,
+) -> str:
+    """Write JSON, Markdown, the curve and the samples; return the Markdown table.
+
+    ``colour_camera`` is recorded as ``read_at_colour_camera`` (null: pixel to pixel), so a
+    card built from this file says how its numbers were read.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    table = markdown_table({label: result, "paper (TUM, Table 2)": PAPER_TUM})
+    payload = {
+        "split": split,
+        "depth_range_m": list(depth_range),
+        "averaging": "per image over its valid pixels, then the mean over images; no median scaling",
+        "read_at_colour_camera": colour_camera.model_dump() if colour_camera else None,
+        "metrics": result,
+        "beats_paper": beats(result, PAPER_TUM),
+        "per_image": per_image,
+    }
+    (out_dir / "metrics.json").write_text(json.dumps(payload, indent=2) + "\n")
+    (out_dir / "metrics.md").write_text(
+        f"# {label} on {split}\n\nValid ground truth in [{depth_range[0]}, {depth_range[1]}] m, "
+        f"{result['images']} images, {result['pixels']} pixels.\n\n{table}\n"
+    )
+    plot_pc_curve({label: [r["pc_rmse"] for r in per_image]}, out_dir / "pc_rmse_curve.png")
+    if grid:
+        sample_grid(grid).save(out_dir / "samples.png")
+    return table
+
+
+def evaluate_source(
+    model: Path,
+    source: DataSource,
+    out: Path,
+    inference: dict[str, Any],
+    depth_range: tuple[float, float],
+    samples: int,
+    colour_camera: ColourCamera | None = None,
+) -> str:
+    """``rgb2cloud evaluate``: score ``model`` on ``source``, write the reports to ``out``, return the table."""
+    predict, label = load_predictor(model, inference)
+    result, per_image, grid = evaluate_frames(
+        predict,
+        open_source(source),
+        min_m=depth_range[0],
+        max_m=depth_range[1],
+        samples=samples,
+        progress=True,
+        colour_camera=colour_camera,
+    )
+    if colour_camera:
+        label += ", read at the colour camera"
+    return write_report(
+        out,
+        result,
+        per_image,
+        grid,
+        split=describe(source),
+        label=label,
+        depth_range=depth_range,
+        colour_camera=colour_camera,
+    )

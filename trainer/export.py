@@ -1,0 +1,199 @@
+"""Export the generator (ONNX + TorchScript), prove parity, publish a versioned card.
+
+What is exported is the ``InferenceGraph`` (the generator with its working scale and
+refinements), never a training wrapper: input ``rgb`` (N, 3, H, W) in [-1, 1] with
+dynamic N, H and W (multiples of the spec's ``input_multiple``), output ``depth``
+(N, 1, H, W) in tanh range. Padding, cropping and metres live in ``contract.runtime``
+and ``contract.codec``, shared with the service.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import subprocess
+import tempfile
+import warnings
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from PIL import Image
+
+from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, Camera, DataRef, Metrics, ModelCard, Training, publish
+from contract.codec import INPUT_ENCODING
+from contract.runtime import OnnxGenerator
+from trainer.checkpoint import load_graph
+from trainer.data.sources import describe, open_source
+from trainer.inference import EagerGenerator, InferenceGraph
+
+PARITY_TOLERANCE = 1e-4
+OPSET = 18
+
+
+class ParityError(ValueError):
+    """An exported file disagrees with eager PyTorch beyond the tolerance."""
+
+
+def export_onnx(graph: InferenceGraph, path: Path) -> None:
+    """One self-contained .onnx file with dynamic batch, height and width."""
+    m = graph.input_multiple
+    example = torch.zeros(1, graph.generator.spec.input_nc, 2 * m, 3 * m)
+    dynamic = torch.export.Dim.DYNAMIC
+    logging.getLogger("torch.onnx").setLevel(logging.ERROR)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            graph.eval(),
+            (example,),
+            str(path),
+            dynamo=True,
+            external_data=False,
+            input_names=["rgb"],
+            output_names=["depth"],
+            opset_version=OPSET,
+            dynamic_shapes={"x": {0: dynamic, 2: dynamic, 3: dynamic}},
+            verbose=False,
+        )
+
+
+def export_torchscript(graph: InferenceGraph, path: Path) -> None:
+    torch.jit.script(graph.eval()).save(str(path))
+
+
+def parity_sizes(height: int, width: int, multiple: int) -> list[tuple[int, int]]:
+    """The image's own size plus one that is not a multiple of the grid."""
+    odd = (height * 3 // 4) | 1, (width * 3 // 4) | 1
+    if odd[0] % multiple == 0 or odd[1] % multiple == 0:
+        odd = odd[0] + 2, odd[1] + 2
+    return [(height, width), odd]
+
+
+def check_parity(graph: InferenceGraph, folder: Path, image: np.ndarray) -> dict[str, float]:
+    """Max abs difference of each exported file vs eager PyTorch, at two sizes.
+
+    Raises ``ParityError`` if any differs by more than ``PARITY_TOLERANCE`` or
+    returns an output whose size is not the input's.
+    """
+    m = graph.input_multiple
+    runners = {
+        "onnx": OnnxGenerator(folder / ONNX_FILE, m),
+        "torchscript": EagerGenerator(torch.jit.load(str(folder / TORCHSCRIPT_FILE), map_location="cpu").eval(), m),
+    }
+    reference = EagerGenerator(graph.eval(), m)
+    report = {}
+    for h, w in parity_sizes(image.shape[0], image.shape[1], m):
+        rgb = np.asarray(Image.fromarray(image).resize((w, h), Image.Resampling.BILINEAR))
+        eager = reference.predict_raw(rgb)
+        for name, runner in runners.items():
+            out = runner.predict_raw(rgb)
+            if out.shape != (h, w):
+                raise ParityError(f"{name} returned {out.shape[1]}x{out.shape[0]} for a {w}x{h} input")
+            diff = float(np.abs(out - eager).max())
+            report[f"{name}@{w}x{h}"] = diff
+            if diff > PARITY_TOLERANCE:
+                raise ParityError(f"{name} differs from eager PyTorch by {diff:.2e} at {w}x{h} (> {PARITY_TOLERANCE})")
+    return report
+
+
+def trainer_commit() -> str:
+    """The git commit of this code, with '-dirty' when it has uncommitted changes."""
+    here = Path(__file__).resolve().parent
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=here,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown (not a git checkout)"
+    return commit + ("-dirty" if dirty else "")
+
+
+def metrics_from_report(path: Path) -> Metrics:
+    """The card's metrics entry from an ``evaluate`` metrics.json."""
+    report = json.loads(Path(path).read_text())
+    m = report["metrics"]
+    return Metrics(
+        split=report["split"],
+        images=m["images"],
+        depth_range_m=tuple(report["depth_range_m"]),
+        colour_camera=report.get("read_at_colour_camera"),
+        **{k: m[k] for k in ("rel", "rmse", "log10", "delta1", "delta2", "delta3", "pc_rmse_mean")},
+    )
+
+
+def export_and_publish(
+    checkpoint: Path,
+    registry: Path,
+    name: str,
+    version: str,
+    metrics_files: list[Path],
+    parity_image: Path,
+    inference: dict[str, Any] | None = None,
+) -> Path:
+    """Export, check parity, and publish ``<registry>/<name>/<version>/`` with its card.
+
+    ``checkpoint`` is a training checkpoint or a published version folder (its
+    weights, published again). ``inference`` changes the inference settings the
+    checkpoint's config (or the version's card) has; the settings in use are baked
+    into the exported graph and recorded in the card. A card from a published
+    version also names it in ``derived_from``.
+    """
+    target = Path(registry) / name / version
+    if target.exists():
+        raise FileExistsError(f"{target} already exists: versions are immutable, publish a new one")
+    graph, config, state = load_graph(checkpoint, inference)
+    readers = [open_source(s) for s in config.data.train]
+    data = []
+    for source, reader in zip(config.data.train, readers, strict=True):
+        if not reader.licence:
+            raise ValueError(f"training source {source.root} has no licence: set 'licence' in its data entry")
+        data.append(
+            DataRef(
+                name=describe(source),
+                format=source.format,
+                frames=source.frames or source.split,
+                licence=reader.licence,
+            )
+        )
+    camera = readers[0][0].intrinsics
+    with Image.open(parity_image) as im:
+        image = np.asarray(im.convert("RGB"))
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        export_onnx(graph, folder / ONNX_FILE)
+        export_torchscript(graph, folder / TORCHSCRIPT_FILE)
+        parity = check_parity(graph, folder, image)
+        card = ModelCard(
+            name=name,
+            version=version,
+            created=datetime.now(UTC),
+            files={},
+            generator=config.generator,
+            inference=config.inference,
+            input_multiple=config.generator.input_multiple,
+            input_encoding=INPUT_ENCODING,
+            depth_encoding=config.depth,
+            camera=Camera(**camera.as_dict()),
+            training=Training(
+                data=data,
+                steps=state["step"],
+                duration_s=round(state["train_seconds"], 1),
+                hardware=state["hardware"],
+                config=config.model_dump(mode="json", exclude={"inference"}),
+            ),
+            metrics=[metrics_from_report(p) for p in metrics_files],
+            trainer_commit=trainer_commit(),
+            parity=parity,
+            derived_from=state.get("published"),
+        )
+        return publish(registry, card, {ONNX_FILE: folder / ONNX_FILE, TORCHSCRIPT_FILE: folder / TORCHSCRIPT_FILE})

@@ -1,0 +1,132 @@
+"""The paper's networks, after pix2pixHD: a global generator and a multi-scale PatchGAN.
+
+Each network is one small class that reads top to bottom like the paper's
+description. Instance norm without affine parameters, as pix2pixHD uses.
+"""
+
+import torch
+from torch import nn
+
+from contract.spec import GeneratorSpec
+from trainer.config import DiscriminatorConfig
+
+
+def _norm(channels: int) -> nn.Module:
+    return nn.InstanceNorm2d(channels, affine=False)
+
+
+class ResnetBlock(nn.Module):
+    """Two reflection-padded 3x3 convolutions with a skip; optional dropout between them.
+
+    The dropout is the paper's noise input Z (G: {X, Z} -> Y), realised as pix2pix
+    does; it is active in ``train()`` mode only, so inference is deterministic.
+    A ``dilation`` above 1 spreads the first convolution's taps; it is zero-padded,
+    because reflection padding needs the map to be wider than the dilation and
+    the service takes images small enough for a 1/16-scale map to be a few pixels.
+    """
+
+    def __init__(self, channels: int, dropout: float, dilation: int = 1):
+        super().__init__()
+        first: list[nn.Module] = (
+            [nn.ReflectionPad2d(1), nn.Conv2d(channels, channels, 3)]
+            if dilation == 1
+            else [nn.Conv2d(channels, channels, 3, padding=dilation, dilation=dilation)]
+        )
+        layers: list[nn.Module] = [
+            *first,
+            _norm(channels),
+            nn.ReLU(True),
+        ]
+        if dropout > 0:
+            layers.append(nn.Dropout(dropout))
+        layers += [nn.ReflectionPad2d(1), nn.Conv2d(channels, channels, 3), _norm(channels)]
+        self.block = nn.Sequential(*layers)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.block(x)
+
+
+class GlobalGenerator(nn.Module):
+    """pix2pixHD's global generator: 7x7 front-end, n_downsample stride-2 convs, n_blocks
+    residual blocks (optionally dilated), n_downsample transposed convs, 7x7 output conv, tanh.
+
+    It runs at its working scale: height and width must be multiples of
+    ``spec.core_multiple``. The trainer feeds it frames already at that scale, so the
+    losses and the discriminators work where the network does; ``trainer.inference``
+    wraps it for full-size photos (pooling, refinement, upsampling) and is what export writes.
+    """
+
+    def __init__(self, spec: GeneratorSpec):
+        super().__init__()
+        self.spec = spec
+        ngf = spec.ngf
+        layers: list[nn.Module] = [nn.ReflectionPad2d(3), nn.Conv2d(spec.input_nc, ngf, 7), _norm(ngf), nn.ReLU(True)]
+        for i in range(spec.n_downsample):
+            c = ngf * 2**i
+            layers += [nn.Conv2d(c, c * 2, 3, stride=2, padding=1), _norm(c * 2), nn.ReLU(True)]
+        c = ngf * 2**spec.n_downsample
+        layers += [ResnetBlock(c, spec.dropout, d) for d in spec.dilations or [1] * spec.n_blocks]
+        for i in range(spec.n_downsample):
+            c = ngf * 2 ** (spec.n_downsample - i)
+            layers += [
+                nn.ConvTranspose2d(c, c // 2, 3, stride=2, padding=1, output_padding=1),
+                _norm(c // 2),
+                nn.ReLU(True),
+            ]
+        layers += [nn.ReflectionPad2d(3), nn.Conv2d(ngf, spec.output_nc, 7), nn.Tanh()]
+        self.model = nn.Sequential(*layers)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.model(x)
+
+
+class NLayerDiscriminator(nn.Module):
+    """PatchGAN with 4x4 kernels and LeakyReLU 0.2; returns every layer's output.
+
+    The last entry is the patch map of real/fake logits; the ones before it are
+    the intermediate features that feature matching compares.
+    """
+
+    def __init__(self, input_nc: int, ndf: int, n_layers: int):
+        super().__init__()
+        kw, pad = 4, 2
+        stages: list[list[nn.Module]] = [[nn.Conv2d(input_nc, ndf, kw, 2, pad), nn.LeakyReLU(0.2, True)]]
+        nf = ndf
+        for _ in range(1, n_layers):
+            prev, nf = nf, min(nf * 2, 512)
+            stages.append([nn.Conv2d(prev, nf, kw, 2, pad), _norm(nf), nn.LeakyReLU(0.2, True)])
+        prev, nf = nf, min(nf * 2, 512)
+        stages.append([nn.Conv2d(prev, nf, kw, 1, pad), _norm(nf), nn.LeakyReLU(0.2, True)])
+        stages.append([nn.Conv2d(nf, 1, kw, 1, pad)])
+        self.stages = nn.ModuleList(nn.Sequential(*s) for s in stages)
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        outputs = []
+        for stage in self.stages:
+            x = stage(x)
+            outputs.append(x)
+        return outputs
+
+
+class MultiscaleDiscriminator(nn.Module):
+    """``num_d`` PatchGANs; D1 sees full resolution, each next one half the previous.
+
+    Downsampling is a 3x3 average pool, stride 2, padding 1, that does not count
+    padded zeros. Input: RGB concatenated with depth along channels.
+    """
+
+    def __init__(self, config: DiscriminatorConfig, input_nc: int):
+        super().__init__()
+        self.config = config
+        self.scales = nn.ModuleList(
+            NLayerDiscriminator(input_nc, config.ndf, config.n_layers) for _ in range(config.num_d)
+        )
+        self.downsample = nn.AvgPool2d(3, stride=2, padding=1, count_include_pad=False)
+
+    def forward(self, x: torch.Tensor) -> list[list[torch.Tensor]]:
+        results = []
+        for i, d in enumerate(self.scales):
+            if i:
+                x = self.downsample(x)
+            results.append(d(x))
+        return results

@@ -1,0 +1,168 @@
+"""Depth cameras beside colour cameras: registering one to the other, and fitting how.
+
+Kinect v1 recordings such as Microsoft 7-Scenes store raw depth in the depth
+(infrared) camera's frame, not the colour camera's: the two lenses differ (the
+colour camera sees a wider view) and sit a few centimetres apart. A network
+that reads a photo can only place an edge where the photo shows it, so it is
+trained on depth moved into the colour camera (``depth_to_colour``), and its
+colour-frame prediction is compared with a raw ground-truth pixel at the colour
+pixel that sees the same 3D point (``sample_at_colour``). Both need the
+ground-truth depth itself: where a point lands depends on how far it is.
+
+The model is a pinhole colour camera translated by ``baseline_m`` along the
+depth camera's x axis and turned by ``roll_deg`` about its optical axis (a turn
+about the other two axes is, this close to the centre, a shift of the principal
+point, which the fit already has); ``fit_colour_camera`` finds it from
+the data by aligning colour edges with depth steps, so a number here always
+comes from a command (``rgb2cloud calibrate``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+
+from contract.geometry import ColourCamera, Intrinsics
+from trainer.data.frames import Frame
+
+
+def colour_coordinates(depth: np.ndarray, depth_camera: Intrinsics, colour: ColourCamera) -> tuple[np.ndarray, ...]:
+    """Colour-image (x, y) and colour-camera z of every depth pixel; NaN where depth is 0."""
+    h, w = depth.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    z = np.where(depth > 0, depth, np.nan).astype(np.float64)
+    x = (u - depth_camera.cx) / depth_camera.fx - colour.baseline_m / z
+    y = (v - depth_camera.cy) / depth_camera.fy
+    if colour.roll_deg:
+        c, s = np.cos(np.radians(colour.roll_deg)), np.sin(np.radians(colour.roll_deg))
+        x, y = c * x - s * y, s * x + c * y
+    return colour.fx * x + colour.cx, colour.fy * y + colour.cy, z
+
+
+def depth_to_colour(depth: np.ndarray, depth_camera: Intrinsics, colour: ColourCamera) -> np.ndarray:
+    """Depth as the colour camera would see it; nearest wins, 0 where no depth pixel lands.
+
+    Nothing is filled in: a colour pixel that no depth pixel reaches (beyond the depth
+    camera's view, or behind an edge only the colour camera sees past) has no
+    ground truth, and training masks it. With a wider colour lens, as on Kinect v1,
+    depth pixels land closer together than colour pixels, so no pinholes open.
+    """
+    h, w = depth.shape
+    xc, yc, z = colour_coordinates(depth, depth_camera, colour)
+    col, row = np.rint(xc), np.rint(yc)
+    inside = np.isfinite(z) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    flat = (row[inside] * w + col[inside]).astype(np.int64)
+    zs = z[inside]
+    # Write far points first so that the nearest point at each pixel is written last and wins.
+    order = np.argsort(-zs, kind="stable")
+    out = np.zeros(h * w, dtype=np.float32)
+    out[flat[order]] = zs[order]
+    return out.reshape(h, w)
+
+
+def register_frame(frame: Frame, colour: ColourCamera) -> Frame:
+    """The frame with its depth moved into the colour camera, and the colour camera's intrinsics."""
+    h, w = frame.depth.shape
+    return Frame(frame.rgb, depth_to_colour(frame.depth, frame.intrinsics, colour), colour.intrinsics(w, h), frame.name)
+
+
+def sample_at_colour(
+    image: np.ndarray, depth: np.ndarray, depth_camera: Intrinsics, colour: ColourCamera
+) -> np.ndarray:
+    """``image`` (colour frame) read at each depth pixel's colour pixel, bilinear; 0 where none."""
+    xc, yc, z = colour_coordinates(depth, depth_camera, colour)
+    h, w = image.shape
+    inside = np.isfinite(z) & (xc >= 0) & (xc <= w - 1) & (yc >= 0) & (yc <= h - 1)
+    out = np.zeros(depth.shape, dtype=np.float32)
+    out[inside] = ndimage.map_coordinates(image.astype(np.float32), [yc[inside], xc[inside]], order=1)
+    return out
+
+
+def _depth_steps(depth: np.ndarray) -> np.ndarray:
+    """Log-depth gradient magnitude, zero near missing depth (its border is not a step)."""
+    filled = np.where(depth > 0, depth, np.median(depth[depth > 0]))
+    log = np.log(filled)
+    steps = np.hypot(ndimage.sobel(log, 0), ndimage.sobel(log, 1))
+    steps[ndimage.binary_dilation(depth <= 0, iterations=2)] = 0
+    return steps
+
+
+def _colour_edges(rgb: np.ndarray) -> np.ndarray:
+    grey = ndimage.gaussian_filter(rgb.astype(np.float32).mean(axis=2), 1.0)
+    return np.hypot(ndimage.sobel(grey, 0), ndimage.sobel(grey, 1))
+
+
+def alignment(frames: Sequence[Frame], colour: ColourCamera) -> float:
+    """Mean normalised correlation between depth steps and the colour edges at their colour pixels."""
+    scores = []
+    for frame in frames:
+        steps = _depth_steps(frame.depth)
+        edges = sample_at_colour(_colour_edges(frame.rgb), frame.depth, frame.intrinsics, colour)
+        denominator = np.sqrt((steps * steps).sum() * (edges * edges).sum())
+        scores.append(float((steps * edges).sum() / denominator) if denominator > 0 else 0.0)
+    return float(np.mean(scores))
+
+
+#: Coordinate search: per parameter, the step sizes tried in turn (coarse to fine), sized for
+#: 640x480 images (a pixel or less at the last).
+SEARCH_ROUNDS = 3
+SEARCH_STEPS = {
+    "fx": (16.0, 4.0, 1.0),
+    "cx": (8.0, 2.0, 0.5),
+    "cy": (8.0, 2.0, 0.5),
+    "baseline_m": (0.02, 0.005, 0.001),
+    "roll_deg": (0.5, 0.15, 0.05),
+}
+
+
+def fit_colour_camera(frames: Sequence[Frame], start: ColourCamera) -> tuple[ColourCamera, float]:
+    """The colour camera that best aligns colour edges with depth steps, and its alignment.
+
+    A coordinate search from ``start``: for each step size, each parameter moves
+    by +-step while that helps. fy follows fx (square pixels), so five numbers
+    are fitted: the focal length, the principal point, the baseline and the roll.
+    """
+    best = start
+    best_score = alignment(frames, best)
+    for round_ in range(SEARCH_ROUNDS):
+        improved = True
+        while improved:
+            improved = False
+            for name, steps in SEARCH_STEPS.items():
+                step = steps[round_]
+                for sign in (1.0, -1.0):
+                    value = getattr(best, name) + sign * step
+                    changes = {name: value, "fy": value} if name == "fx" else {name: value}
+                    candidate = best.model_copy(update=changes)
+                    score = alignment(frames, candidate)
+                    if score > best_score:
+                        best, best_score, improved = candidate, score, True
+                        break
+    return best, best_score
+
+
+def calibrate_sequence(root: Path, frames: str, every: int, fx: float, others: dict[str, ColourCamera]) -> list[str]:
+    """``rgb2cloud calibrate``: fit the colour camera of a 7-Scenes sequence; the lines to print.
+
+    The fit starts from the depth camera's own intrinsics with focal length ``fx``;
+    each of ``others`` (label -> camera) is scored on the same frames for comparison.
+    """
+    from trainer.data.frames import parse_frame_ranges
+    from trainer.data.sevenscenes import SevenScenesReader
+
+    chosen = parse_frame_ranges(frames)[::every]
+    reader = SevenScenesReader(root, ",".join(str(n) for n in chosen))
+    sample = [reader[i] for i in range(len(reader))]
+    depth_camera = sample[0].intrinsics
+    unregistered = ColourCamera(fx=depth_camera.fx, fy=depth_camera.fy, cx=depth_camera.cx, cy=depth_camera.cy)
+    fitted, score = fit_colour_camera(sample, unregistered.model_copy(update={"fx": fx, "fy": fx}))
+    return [
+        f"{len(sample)} frames of {frames}, every {every}th",
+        f"alignment as recorded (same camera): {alignment(sample, unregistered):.4f}",
+        *(f"alignment of {label}: {alignment(sample, camera):.4f}" for label, camera in others.items()),
+        f"alignment fitted: {score:.4f}",
+        f"colour_camera: {fitted.flow()}",
+    ]
