@@ -15,9 +15,15 @@ def report(
     model: Annotated[Path, typer.Argument(help="the published version folder to report on", exists=True)],
     root: Annotated[Path, typer.Option(help="7-Scenes sequence folder", exists=True, file_okay=False)],
     unseen: Annotated[Path, typer.Option(help="CSV manifest of a scene never trained on", exists=True, dir_okay=False)],
-    compare: Annotated[
-        list[str], typer.Option(help="LABEL=PATH: a checkpoint, version or stored score (.json) to show beside it")
-    ] = [],  # noqa: B006
+    experiments: Annotated[
+        Path | None,
+        typer.Option(
+            help="YAML file, label -> a checkpoint, version folder or stored record (.json) to compare with it "
+            "(paths relative to the current folder)",
+            exists=True,
+            dir_okay=False,
+        ),
+    ] = None,
     train_frames: Annotated[str, typer.Option(help="frames the baselines are fitted on")] = "0-799",
     test_frames: Annotated[str, typer.Option(help="frames everything is scored on")] = "850-999",
     out: Annotated[Path, typer.Option(help="folder for quality.md and quality/")] = Path("docs"),
@@ -26,17 +32,12 @@ def report(
     ] = None,
 ) -> None:
     """Write quality.md: metrics beside the paper and baselines, curve, samples, experiments, an unseen scene."""
-    from lab.report import ReportInputs, build_report
+    from lab.report import ReportInputs, build_report, read_experiments
 
-    pairs = {}
-    for item in compare:
-        name, sep, path = item.rpartition("=")
-        if not sep or not name or not Path(path).exists():
-            raise typer.BadParameter(
-                f"--compare {item!r}: expected LABEL=PATH to an existing checkpoint, version or stored score"
-            )
-        pairs[name] = Path(path)
-    inputs = ReportInputs(model, root, unseen, pairs, out, config, train_frames=train_frames, test_frames=test_frames)
+    compare = read_experiments(experiments) if experiments else {}
+    inputs = ReportInputs(
+        model, root, unseen, compare, out, config, experiments, train_frames=train_frames, test_frames=test_frames
+    )
     typer.echo(f"wrote {build_report(inputs)}")
 
 
@@ -51,7 +52,7 @@ def record(
     source: Annotated[str, typer.Option(help="what was scored, where, and why it is not kept")] = "",
     out: Annotated[Path, typer.Option(help="folder of stored records")] = Path("docs/quality/compared"),
 ) -> None:
-    """Store a run scored elsewhere (say, on a leased GPU) as a record `rgb2cloud-lab report --compare` reads."""
+    """Store a run scored elsewhere (say, on a leased GPU) as a record `rgb2cloud-lab report` can compare."""
     from lab.records import store_evaluations
 
     typer.echo(f"wrote {store_evaluations(label, test, unseen, unseen_manifest, config, set_, source, out)}")

@@ -2,10 +2,10 @@
 
     rgb2cloud-lab report weights/rgb2cloud-7scenes/0.8.0 \\
         --root ../shared/data/7scenes-redkitchen --unseen runs/tum-fr3-office.csv \\
-        --compare "paper objective only=runs/7scenes-paper-objective/checkpoints/last.pt"
+        --experiments docs/quality/experiments.yaml
 
 The published model is scored the way the service runs it (ONNX Runtime, after
-its sha256 check). Each ``--compare`` model (a checkpoint or a version folder)
+its sha256 check). Each compared model (``--experiments``) (a checkpoint or a version folder)
 is scored on the same test frames, and its training config is shown as a diff
 against the published model's, so an experiment's row says exactly what changed.
 Each one scored is also stored (``lab.records``), so that a later report on a
@@ -56,17 +56,37 @@ class ReportInputs:
     out: Path
     #: The config that trains the published model (``rgb2cloud train``), named in the Reproduce section.
     config: Path | None = None
+    #: The file ``compare`` was read from, named in the Reproduce section.
+    experiments: Path | None = None
     train_frames: str = "0-799"
     test_frames: str = "850-999"
     min_m: float = 0.1
     max_m: float = 10.0
 
 
+def read_experiments(path: Path) -> dict[str, Path]:
+    """The compared runs a YAML file names (label -> path), each checked to exist."""
+    import yaml
+
+    entries = yaml.safe_load(Path(path).read_text()) or {}
+    if not isinstance(entries, dict):
+        raise ValueError(f"{path}: expected a mapping of label -> path")
+    missing = [str(p) for p in entries.values() if not Path(p).exists()]
+    if missing:
+        raise ValueError(f"{path}: no such checkpoint, version or record: {', '.join(missing)}")
+    return {str(label): Path(p) for label, p in entries.items()}
+
+
 def training_config(path: Path) -> dict:
-    """The complete run config a checkpoint or a published version was trained with."""
+    """The complete run config a checkpoint or a published version was trained with.
+
+    A version's inference settings are the ones in its graph, so that how it runs shows in
+    the experiments table beside how it was trained.
+    """
     if path.is_dir():
         card = load_card(path)
-        return complete_config({**card.training.config, "generator": card.generator.model_dump(mode="json")})
+        spec, inference = card.generator.model_dump(mode="json"), card.inference.model_dump(mode="json")
+        return complete_config({**card.training.config, "generator": spec, "inference": inference})
     from trainer.checkpoint import load_checkpoint
 
     return complete_config(load_checkpoint(path)["config"])
@@ -373,7 +393,7 @@ def _reproduce(inputs: ReportInputs, card: ModelCard, colour: ColourCamera | Non
     checkpoint = f"{run}/checkpoints/{'best' if trained['data']['val'] else 'last'}.pt"
     camera = f" --colour-camera '{colour.flow()}'" if colour else ""
     parity = os.path.normpath(unseen.path.parent / unseen.rows[0][0])
-    compare = " ".join(f'--compare "{n}={p}"' for n, p in inputs.compare.items())
+    compare = f" --experiments {inputs.experiments}" if inputs.experiments else ""
     return [
         "```sh",
         f"rgb2cloud train {config}",
@@ -381,10 +401,11 @@ def _reproduce(inputs: ReportInputs, card: ModelCard, colour: ColourCamera | Non
         f"--out {run}/eval-test{camera}",
         f"rgb2cloud evaluate {checkpoint} --format csv --root {inputs.unseen} --out {run}/eval-unseen",
         f"rgb2cloud export {checkpoint} --name {card.name} --version {card.version} "
-        f"--metrics {run}/eval-test/metrics.json --metrics {run}/eval-unseen/metrics.json --parity-image {parity}",
+        f"--metrics {run}/eval-test/metrics.json --metrics {run}/eval-unseen/metrics.json --parity-image {parity} "
+        f"--registry {Path(run).parent}/weights",
         f"rgb2cloud baselines --format 7scenes --root {inputs.root} --train-frames {inputs.train_frames} "
         f"--test-frames {inputs.test_frames}",
-        f"rgb2cloud-lab report {inputs.model} --root {inputs.root} --unseen {inputs.unseen} {compare} "
+        f"rgb2cloud-lab report {inputs.model} --root {inputs.root} --unseen {inputs.unseen}{compare} "
         f"--out {inputs.out}",
         "```",
         "",

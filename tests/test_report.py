@@ -55,6 +55,8 @@ def refused(*args: str) -> str:
 def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, trained_checkpoint, tmp_path):
     out = tmp_path / "docs"
     unseen = write_unseen_manifest(tmp_path / "tum-fr3-office.csv")  # the unseen frame, read in place
+    experiments = tmp_path / "experiments.yaml"
+    experiments.write_text(yaml.safe_dump({"eager checkpoint": str(trained_checkpoint)}))
     run_cli(
         "report",
         str(registry / "tiny" / "0.1.0"),
@@ -62,8 +64,8 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
         str(SEVEN_SCENES),
         "--unseen",
         str(unseen),
-        "--compare",
-        f"eager checkpoint={trained_checkpoint}",
+        "--experiments",
+        str(experiments),
         "--train-frames",
         "0-3",
         "--test-frames",
