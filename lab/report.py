@@ -318,6 +318,23 @@ def build_report(inputs: ReportInputs) -> Path:
         "",
         *_card_section(card, inputs.model),
         "",
+        *_test_section(inputs, rows, ours, len(curves), colour),
+        *_unseen_section(inputs, label, unseen_result, records, len(unseen)),
+        *_experiments_section(base_config, records, links),
+        "## Reproduce",
+        "",
+        *_reproduce(inputs, card, colour, unseen),
+    ]
+    path = out / "quality.md"
+    path.write_text("\n".join(lines))
+    return path
+
+
+def _test_section(
+    inputs: ReportInputs, rows: dict[str, dict], ours: dict, curves: int, colour: ColourCamera | None
+) -> list[str]:
+    """The test split's table, what it says, the point-cloud curve and where the samples are."""
+    return [
         f"## 7-Scenes RedKitchen test split: frames {inputs.test_frames}",
         "",
         f"Never seen in training or model selection (train split {inputs.train_frames}). Full 640x480, ground "
@@ -346,7 +363,7 @@ def build_report(inputs: ReportInputs) -> Path:
         f"Mean per-image point-cloud RMSE (formula (5) on both depths, same pixels): "
         f"**{ours['pc_rmse_mean']:.3f} m** on this split; the paper reports {PAPER_TUM['pc_rmse_mean']} m on TUM and "
         f"{PAPER_NYU_PC_RMSE} m on NYU. The Figure-8-style curve (fraction of test images with RMSE below r), "
-        f"for the published model and each compared run whose per-image scores are kept ({len(curves)} in all):",
+        f"for the published model and each compared run whose per-image scores are kept ({curves} in all):",
         "",
         "![point-cloud RMSE curve](quality/pc_rmse_curve.png)",
         "",
@@ -357,32 +374,33 @@ def build_report(inputs: ReportInputs) -> Path:
         "from a virtual camera turned 35°), and `unseen-sample.png` and `unseen-pointcloud.png` (the same for "
         "the unseen scene below). They hold dataset pixels, so they stay on your machine.",
         "",
+    ]
+
+
+def _unseen_section(
+    inputs: ReportInputs, label: str, result: dict, records: dict[str, ScoreRecord], frames: int
+) -> list[str]:
+    """The published model and every compared run on a room none of them saw."""
+    return [
         "## A room it never saw",
         "",
-        f"`{inputs.unseen}` ({len(unseen)} frame(s); ours is the real TUM fr3 office frame, {TUM_LICENCE}), "
+        f"`{inputs.unseen}` ({frames} frame(s); ours is the real TUM fr3 office frame, {TUM_LICENCE}), "
         "with its own camera's intrinsics:",
         "",
         markdown_table(
             {
-                f"**{label}**": unseen_result,
+                f"**{label}**": result,
                 **{name: record.unseen_metrics for name, record in records.items()},
                 "paper (TUM, Table 2; trained on TUM)": PAPER_TUM,
             }
         ),
         "",
-        f"The median of truth / prediction is {unseen_result['median_scaled']['ratio']['mean']:.2f}; scaled by "
-        f"it, REL would be {unseen_result['median_scaled']['rel']:.3f}. A model trained on one kitchen has learnt "
+        f"The median of truth / prediction is {result['median_scaled']['ratio']['mean']:.2f}; scaled by "
+        f"it, REL would be {result['median_scaled']['rel']:.3f}. A model trained on one kitchen has learnt "
         "that kitchen: in another room, with another camera, its absolute scale and layout do not carry over. "
         "Train a model of your own space on some of your own RGB-D frames ([training.md](training.md)).",
         "",
-        *_experiments_section(base_config, records, links),
-        "## Reproduce",
-        "",
-        *_reproduce(inputs, card, colour, unseen),
     ]
-    path = out / "quality.md"
-    path.write_text("\n".join(lines))
-    return path
 
 
 def _reproduce(inputs: ReportInputs, card: ModelCard, colour: ColourCamera | None, unseen: ManifestReader) -> list:

@@ -13,10 +13,7 @@ so a resumed run repeats an uninterrupted one bit for bit on the same device.
 
 from __future__ import annotations
 
-import gc
-import hashlib
 import json
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,64 +29,27 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from trainer.checkpoint import load_checkpoint, save_checkpoint
-from trainer.config import RunConfig, complete_config
+from trainer.config import LossConfig, RunConfig, complete_config
 from trainer.data.dataset import ConcatFrames, StepBatchSampler, TrainingSet
 from trainer.data.sources import open_source
+from trainer.devices import (
+    Distributed,
+    hardware_description,
+    hardware_history,
+    leave_process_group,
+    pick_device,
+    rank_digests,
+    setup_distributed,
+    unwrap,
+)
 from trainer.evaluate import evaluate_frames
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.losses import GANLoss, feature_matching, fill_holes, masked_l1, patch_weights
-from trainer.machine import cpu_description
 from trainer.networks import GlobalGenerator, MultiscaleDiscriminator
 from trainer.visualize import sample_grid
 
 #: Config sections that define the networks and their targets; resume refuses to change them.
 FROZEN_ON_RESUME = ("generator", "discriminator", "depth", "loss")
-
-
-@dataclass
-class Distributed:
-    rank: int = 0
-    world_size: int = 1
-    local_rank: int = 0
-
-    @property
-    def is_main(self) -> bool:
-        return self.rank == 0
-
-
-def setup_distributed(device_kind: str) -> Distributed:
-    """Join the torchrun process group if launched by torchrun; otherwise run alone."""
-    if "RANK" not in os.environ:
-        return Distributed()
-    backend = "nccl" if device_kind == "cuda" else "gloo"
-    dist.init_process_group(backend)
-    return Distributed(dist.get_rank(), dist.get_world_size(), int(os.environ.get("LOCAL_RANK", 0)))
-
-
-def pick_device(choice: str, local_rank: int) -> torch.device:
-    if choice == "cuda" and not torch.cuda.is_available():
-        raise ValueError("train.device=cuda, but torch sees no CUDA device (use train.device=auto or cpu)")
-    if choice == "cuda" or (choice == "auto" and torch.cuda.is_available()):
-        torch.cuda.set_device(local_rank)
-        return torch.device("cuda", local_rank)
-    return torch.device("cpu")
-
-
-def hardware_description(device: torch.device, world_size: int) -> str:
-    if device.type == "cuda":
-        return f"{world_size} x {torch.cuda.get_device_name(device)}"
-    return f"CPU {cpu_description()}, {world_size} process(es), {torch.get_num_threads()} threads each"
-
-
-def hardware_history(segments: list[list], step: int) -> str:
-    """The card's hardware line: one machine, or each stretch of steps when a resume changed it.
-
-    ``segments`` holds ``[first_step, hardware]`` pairs in order; ``step`` ends the last one.
-    """
-    if len(segments) == 1:
-        return segments[0][1]
-    ends = [start for start, _ in segments[1:]] + [step]
-    return "; ".join(f"steps {start}-{end}: {hw}" for (start, hw), end in zip(segments, ends, strict=True))
 
 
 def init_weights(module: nn.Module) -> None:
@@ -104,25 +64,11 @@ def step_seed(seed: int, step: int, rank: int) -> int:
     return int(np.random.SeedSequence([seed, step, rank]).generate_state(1)[0])
 
 
-def weights_digest(*modules: nn.Module) -> str:
-    """sha256 over every parameter and buffer, to compare ranks or runs exactly."""
-    digest = hashlib.sha256()
-    for module in modules:
-        for name, tensor in sorted(module.state_dict().items()):
-            digest.update(name.encode())
-            digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
-    return digest.hexdigest()
-
-
 def _split(outputs: list[list[torch.Tensor]], n: int) -> tuple[list[list[torch.Tensor]], list[list[torch.Tensor]]]:
     """Split D's outputs for a [fake; real] batch into the fake and the real halves."""
     fake = [[t[:n] for t in scale] for scale in outputs]
     real = [[t[n:] for t in scale] for scale in outputs]
     return fake, real
-
-
-def _unwrap(module: nn.Module) -> nn.Module:
-    return module.module if isinstance(module, DistributedDataParallel) else module
 
 
 def _check_resumable(saved: dict, config: RunConfig) -> None:
@@ -145,29 +91,29 @@ def train(config: RunConfig, resume: bool = False) -> dict:
             leave_process_group()
 
 
-def leave_process_group() -> None:
-    """Tear the process group down in a set order, while the interpreter is still whole.
+@dataclass(frozen=True)
+class Precision:
+    """Mixed precision on CUDA (bf16 where supported, else fp16 with a gradient scaler); fp32 elsewhere."""
 
-    In CI, rank 0 of a finished CPU run once aborted at exit ("terminate called without
-    an active exception", SIGABRT) after its last step. The DDP wrappers' reducers
-    hold the group and its gloo threads; if they outlive ``destroy_process_group`` they
-    are freed during interpreter shutdown in no set order. So every rank first meets the
-    others (the barrier at the end of ``_train``), then the wrappers, gone with
-    ``_train``'s frame or held in a cycle, are collected, and only then is the group destroyed.
-    """
-    gc.collect()
-    dist.destroy_process_group()
+    enabled: bool
+    dtype: torch.dtype
+
+    @property
+    def scaled(self) -> bool:
+        """fp16 gradients need a scaler against underflow; bf16 and fp32 do not."""
+        return self.enabled and self.dtype == torch.float16
+
+    @classmethod
+    def for_device(cls, device: torch.device, wanted: bool) -> Precision:
+        enabled = wanted and device.type == "cuda"
+        return cls(enabled, torch.bfloat16 if enabled and torch.cuda.is_bf16_supported() else torch.float16)
 
 
-def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
-    device = pick_device(config.train.device, ddp.local_rank)
-    if config.train.threads:
-        torch.set_num_threads(config.train.threads)
-    loop = config.train
-    out = Path(loop.out_dir)
-    ckpt_dir = out / "checkpoints"
-
-    torch.manual_seed(loop.seed)  # identical initial weights on every rank
+def build_networks(
+    config: RunConfig, device: torch.device
+) -> tuple[GlobalGenerator, MultiscaleDiscriminator, torch.optim.Adam, torch.optim.Adam]:
+    """G and D with pix2pixHD's initialisation, seeded so every rank starts identical, and their Adams."""
+    torch.manual_seed(config.train.seed)
     generator = GlobalGenerator(config.generator)
     discriminator = MultiscaleDiscriminator(
         config.discriminator, config.generator.input_nc + config.generator.output_nc
@@ -179,9 +125,98 @@ def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
     betas = (config.optim.beta1, config.optim.beta2)
     opt_g = torch.optim.Adam(generator.parameters(), lr=config.optim.lr, betas=betas)
     opt_d = torch.optim.Adam(discriminator.parameters(), lr=config.optim.lr, betas=betas)
-    use_amp = loop.amp and device.type == "cuda"
-    amp_dtype = torch.bfloat16 if use_amp and torch.cuda.is_bf16_supported() else torch.float16
-    scaler = torch.amp.GradScaler(device.type, enabled=use_amp and amp_dtype == torch.float16)
+    return generator, discriminator, opt_g, opt_d
+
+
+def training_loader(config: RunConfig, ddp: Distributed, start_step: int, pin_memory: bool) -> DataLoader:
+    """This rank's batches from ``start_step`` on, each rebuilt from the step number alone."""
+    frames = ConcatFrames([open_source(s) for s in config.data.train])
+    loop = config.train
+    dataset = TrainingSet(frames, config.data.transform, config.depth, loop.seed)
+    sampler = StepBatchSampler(len(frames), loop.batch_size, loop.seed, ddp.rank, ddp.world_size, start_step)
+    return DataLoader(
+        dataset,
+        batch_sampler=sampler,
+        num_workers=loop.num_workers,
+        pin_memory=pin_memory,
+        persistent_workers=loop.num_workers > 0,
+    )
+
+
+def gan_step(
+    generator: nn.Module,
+    discriminator: nn.Module,
+    optimisers: tuple[torch.optim.Optimizer, torch.optim.Optimizer],
+    scaler: torch.amp.GradScaler,
+    gan_loss: GANLoss,
+    loss: LossConfig,
+    batch: dict[str, torch.Tensor],
+    amp: Precision,
+) -> dict[str, torch.Tensor]:
+    """One pix2pixHD update: G against the current D, then D against the same fake batch; the losses."""
+    opt_g, opt_d = optimisers
+    x, real, valid = batch["rgb"], batch["depth"], batch["valid"]
+    n = x.shape[0]
+    device_type = x.device.type
+    # Generator: fool D and match its features on real pairs.
+    with torch.autocast(device_type, dtype=amp.dtype, enabled=amp.enabled):
+        fake = generator(x)
+        real_filled = fill_holes(real, fake, valid)
+        pairs = torch.cat([torch.cat([x, fake], 1), torch.cat([x, real_filled], 1)], 0)
+        pred_fake, pred_real = _split(discriminator(pairs), n)
+        weights = patch_weights(valid, pred_real)
+        losses = {"G_gan": gan_loss(pred_fake, True), "G_fm": feature_matching(pred_fake, pred_real, weights)}
+        loss_g = losses["G_gan"] + loss.feature_matching * losses["G_fm"]
+        if loss.l1_depth > 0:
+            losses["G_l1"] = masked_l1(fake, real, valid)
+            loss_g = loss_g + loss.l1_depth * losses["G_l1"]
+    opt_g.zero_grad(set_to_none=True)
+    scaler.scale(loss_g).backward()
+    scaler.step(opt_g)
+
+    # Discriminator: the same fake batch (detached) against real pairs with holes filled.
+    with torch.autocast(device_type, dtype=amp.dtype, enabled=amp.enabled):
+        pairs = torch.cat([torch.cat([x, fake.detach()], 1), torch.cat([x, real_filled], 1)], 0)
+        pred_fake, pred_real = _split(discriminator(pairs), n)
+        losses["D_fake"] = gan_loss(pred_fake, False)
+        losses["D_real"] = gan_loss(pred_real, True, weights)  # the same cells as in the G step
+        loss_d = 0.5 * (losses["D_fake"] + losses["D_real"])
+    opt_d.zero_grad(set_to_none=True)
+    scaler.scale(loss_d).backward()
+    scaler.step(opt_d)
+    scaler.update()
+    return losses
+
+
+def score_generator(
+    generator: GlobalGenerator, config: RunConfig, frames: ConcatFrames
+) -> tuple[dict, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    """Validation: the generator run as export will run it (its inference settings), on ``frames``."""
+    generator.eval()
+    runner = EagerGenerator(InferenceGraph(generator, config.inference), config.generator.input_multiple)
+    result, _, grid = evaluate_frames(
+        lambda rgb: config.depth.decode(runner.predict_raw(rgb)),
+        frames,
+        min_m=config.data.eval_min_m,
+        max_m=config.data.eval_max_m,
+        scale=config.data.val_scale,
+        samples=4,
+    )
+    generator.train()
+    return result, grid
+
+
+def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
+    device = pick_device(config.train.device, ddp.local_rank)
+    if config.train.threads:
+        torch.set_num_threads(config.train.threads)
+    loop = config.train
+    out = Path(loop.out_dir)
+    ckpt_dir = out / "checkpoints"
+
+    generator, discriminator, opt_g, opt_d = build_networks(config, device)
+    amp = Precision.for_device(device, loop.amp)
+    scaler = torch.amp.GradScaler(device.type, enabled=amp.scaled)
 
     start_step, best, train_seconds = 0, None, 0.0
     segments: list[list] = []  # [first_step, hardware] per stretch of training on one setup
@@ -201,17 +236,8 @@ def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
         generator = DistributedDataParallel(generator, device_ids=ids)
         discriminator = DistributedDataParallel(discriminator, device_ids=ids)
 
-    frames = ConcatFrames([open_source(s) for s in config.data.train])
+    loader = training_loader(config, ddp, start_step, pin_memory=device.type == "cuda")
     val_frames = ConcatFrames([open_source(s) for s in config.data.val]) if config.data.val else None
-    dataset = TrainingSet(frames, config.data.transform, config.depth, loop.seed)
-    sampler = StepBatchSampler(len(frames), loop.batch_size, loop.seed, ddp.rank, ddp.world_size, start_step)
-    loader = DataLoader(
-        dataset,
-        batch_sampler=sampler,
-        num_workers=loop.num_workers,
-        pin_memory=device.type == "cuda",
-        persistent_workers=loop.num_workers > 0,
-    )
     gan_loss = GANLoss(config.loss.gan_mode)
 
     writer = None
@@ -224,9 +250,9 @@ def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
         segments.append([start_step, hardware])
 
     def checkpoint_state(step: int) -> dict:
-        state = {
-            "generator": _unwrap(generator).state_dict(),
-            "discriminator": _unwrap(discriminator).state_dict(),
+        return {
+            "generator": unwrap(generator).state_dict(),
+            "discriminator": unwrap(discriminator).state_dict(),
             "opt_g": opt_g.state_dict(),
             "opt_d": opt_d.state_dict(),
             "scaler": scaler.state_dict(),
@@ -237,23 +263,12 @@ def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
             "hardware_segments": segments,
             "config": config.model_dump(mode="json"),
         }
-        return state
 
     def validate(step: int) -> dict | None:
         nonlocal best
         if val_frames is None:
             return None
-        _unwrap(generator).eval()
-        runner = EagerGenerator(InferenceGraph(_unwrap(generator), config.inference), config.generator.input_multiple)
-        result, _, grid = evaluate_frames(
-            lambda rgb: config.depth.decode(runner.predict_raw(rgb)),
-            val_frames,
-            min_m=config.data.eval_min_m,
-            max_m=config.data.eval_max_m,
-            scale=config.data.val_scale,
-            samples=4,
-        )
-        _unwrap(generator).train()
+        result, grid = score_generator(unwrap(generator), config, val_frames)
         for key in ("rel", "rmse", "log10", "delta1", "delta2", "delta3", "pc_rmse_mean"):
             writer.add_scalar(f"val/{key}", result[key], step)
         (out / "samples").mkdir(exist_ok=True)
@@ -288,37 +303,8 @@ def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
                 group["lr"] = config.optim.lr_at(step)
         torch.manual_seed(step_seed(loop.seed, step, ddp.rank))
         batch = {k: v.to(device, non_blocking=True) for k, v in next(batches).items()}
-        x, real, valid = batch["rgb"], batch["depth"], batch["valid"]
-        n = x.shape[0]
-
-        # Generator: fool D and match its features on real pairs.
-        with torch.autocast(device.type, dtype=amp_dtype, enabled=use_amp):
-            fake = generator(x)
-            real_filled = fill_holes(real, fake, valid)
-            pairs = torch.cat([torch.cat([x, fake], 1), torch.cat([x, real_filled], 1)], 0)
-            pred_fake, pred_real = _split(discriminator(pairs), n)
-            weights = patch_weights(valid, pred_real)
-            loss_g_gan = gan_loss(pred_fake, True)
-            loss_fm = feature_matching(pred_fake, pred_real, weights)
-            loss_g = loss_g_gan + config.loss.feature_matching * loss_fm
-            loss_l1 = masked_l1(fake, real, valid) if config.loss.l1_depth > 0 else None
-            if loss_l1 is not None:
-                loss_g = loss_g + config.loss.l1_depth * loss_l1
-        opt_g.zero_grad(set_to_none=True)
-        scaler.scale(loss_g).backward()
-        scaler.step(opt_g)
-
-        # Discriminator: the same fake batch (detached) against real pairs with holes filled.
-        with torch.autocast(device.type, dtype=amp_dtype, enabled=use_amp):
-            pairs = torch.cat([torch.cat([x, fake.detach()], 1), torch.cat([x, real_filled], 1)], 0)
-            pred_fake, pred_real = _split(discriminator(pairs), n)
-            loss_d_fake = gan_loss(pred_fake, False)
-            loss_d_real = gan_loss(pred_real, True, weights)  # the same cells as in the G step
-            loss_d = 0.5 * (loss_d_fake + loss_d_real)
-        opt_d.zero_grad(set_to_none=True)
-        scaler.scale(loss_d).backward()
-        scaler.step(opt_d)
-        scaler.update()
+        losses = gan_step(generator, discriminator, (opt_g, opt_d), scaler, gan_loss, config.loss, batch, amp)
+        n = batch["rgb"].shape[0]
 
         elapsed = time.perf_counter() - tick  # validation and saving below are not training time
         train_seconds += elapsed
@@ -327,14 +313,7 @@ def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
         done = step + 1
         if ddp.is_main and (done % loop.log_every == 0 or done == loop.steps):
             rate = window_images / window_seconds
-            logged = {
-                "G_gan": loss_g_gan.item(),
-                "G_fm": loss_fm.item(),
-                "D_real": loss_d_real.item(),
-                "D_fake": loss_d_fake.item(),
-            }
-            if loss_l1 is not None:
-                logged["G_l1"] = loss_l1.item()
+            logged = {key: value.item() for key, value in losses.items()}
             for key, value in logged.items():
                 writer.add_scalar(f"loss/{key}", value, done)
             writer.add_scalar("lr", config.optim.lr_at(step), done)
@@ -348,17 +327,12 @@ def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
         if ddp.world_size > 1 and (done % loop.val_every == 0 or done % loop.checkpoint_every == 0):
             dist.barrier()  # keep ranks together while rank 0 validates or saves
 
-    digest = weights_digest(_unwrap(generator), _unwrap(discriminator))
-    digests = [digest]
-    if ddp.world_size > 1:
-        digests = [None] * ddp.world_size
-        dist.all_gather_object(digests, digest)
     summary = {
         "steps": loop.steps,
         "train_seconds": round(train_seconds, 1),
         "hardware": hardware_history(segments, loop.steps),
         "best": best,
-        "rank_weight_sha256": digests,
+        "rank_weight_sha256": rank_digests(ddp, unwrap(generator), unwrap(discriminator)),
         "last_losses": logged,
     }
     if ddp.is_main:
