@@ -32,6 +32,13 @@ ColourCameraOption = Annotated[
     ),
 ]
 
+ModelArgument = Annotated[Path, typer.Argument(help="a published version folder, or a checkpoint (.pt)", exists=True)]
+Format = Annotated[str, typer.Option(help="7scenes | tum | nyu | csv")]
+Root = Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)]
+Frames = Annotated[str | None, typer.Option(help="7scenes frame ranges, e.g. 850-999")]
+MinDepth = Annotated[float, typer.Option(help="valid ground truth from (m)")]
+MaxDepth = Annotated[float, typer.Option(help="valid ground truth up to (m)")]
+
 app = typer.Typer(help="rgb2cloud: metric depth and point clouds from one RGB image.", no_args_is_help=True)
 
 
@@ -52,15 +59,15 @@ def train(
 
 @app.command()
 def evaluate(
-    model: Annotated[Path, typer.Argument(help="a published version folder, or a checkpoint (.pt)", exists=True)],
-    format: Annotated[str, typer.Option(help="7scenes | tum | nyu | csv")],
-    root: Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)],
-    frames: Annotated[str | None, typer.Option(help="7scenes frame ranges, e.g. 850-999")] = None,
+    model: ModelArgument,
+    format: Format,
+    root: Root,
+    frames: Frames = None,
     split: Annotated[str, typer.Option(help="nyu: train | test | all")] = "all",
     splits_file: Annotated[Path | None, typer.Option(help="nyu: splits.mat (default: beside the .mat)")] = None,
     out: Annotated[Path, typer.Option(help="folder for metrics.json, metrics.md and plots")] = Path("runs/eval"),
-    min_depth: Annotated[float, typer.Option(help="valid ground truth from (m)")] = 0.1,
-    max_depth: Annotated[float, typer.Option(help="valid ground truth up to (m)")] = 10.0,
+    min_depth: MinDepth = 0.1,
+    max_depth: MaxDepth = 10.0,
     samples: Annotated[int, typer.Option(help="rows in samples.png")] = 4,
     inference: Inference = [],  # noqa: B006
     colour_camera: ColourCameraOption = None,
@@ -113,13 +120,13 @@ def export(
 
 @app.command()
 def baselines(
-    format: Annotated[str, typer.Option(help="7scenes | tum | nyu | csv")],
-    root: Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)],
+    format: Format,
+    root: Root,
     train_frames: Annotated[str, typer.Option(help="frames the baselines are fitted on, e.g. 0-799")],
     test_frames: Annotated[str, typer.Option(help="frames they are scored on, e.g. 850-999")],
     out: Annotated[Path | None, typer.Option(help="also write baselines.json here")] = None,
-    min_depth: Annotated[float, typer.Option(help="valid ground truth from (m)")] = 0.1,
-    max_depth: Annotated[float, typer.Option(help="valid ground truth up to (m)")] = 10.0,
+    min_depth: MinDepth = 0.1,
+    max_depth: MaxDepth = 10.0,
 ) -> None:
     """Score the image-free baselines (train median; per-pixel train median) on a test split."""
     from trainer.baselines import baselines_table
@@ -188,10 +195,14 @@ def parse_colour_camera(text: str, option: str = "--colour-camera") -> ColourCam
         raise typer.BadParameter(f"{option} {text!r}: {e}") from e
 
 
-def main() -> None:
-    """Run the CLI; mistakes a user can fix (bad paths, configs, versions) print one line, exit 1."""
+def run_app(commands: typer.Typer) -> None:
+    """Run a command line; mistakes a user can fix (bad paths, configs, versions) print one line, exit 1."""
     try:
-        app()
+        commands()
     except (OSError, ValueError) as e:
         typer.echo(f"error: {e}", err=True)
         raise SystemExit(1) from None
+
+
+def main() -> None:
+    run_app(app)

@@ -7,6 +7,18 @@ from typing import Annotated
 
 import typer
 
+from cli.main import (
+    ColourCameraOption,
+    Format,
+    Frames,
+    MaxDepth,
+    MinDepth,
+    ModelArgument,
+    Root,
+    parse_colour_camera,
+    run_app,
+)
+
 app = typer.Typer(help="rgb2cloud-lab: research tooling for rgb2cloud models.", no_args_is_help=True)
 
 
@@ -60,23 +72,20 @@ def record(
 
 @app.command()
 def diagnose(
-    model: Annotated[Path, typer.Argument(help="a published version folder, or a checkpoint (.pt)", exists=True)],
-    format: Annotated[str, typer.Option(help="7scenes | tum | nyu | csv")],
-    root: Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)],
-    frames: Annotated[str | None, typer.Option(help="7scenes frame ranges, e.g. 850-999")] = None,
-    min_depth: Annotated[float, typer.Option(help="valid ground truth from (m)")] = 0.1,
-    max_depth: Annotated[float, typer.Option(help="valid ground truth up to (m)")] = 10.0,
-    colour_camera: Annotated[
-        str | None, typer.Option(help="as rgb2cloud evaluate takes it, for a model trained on registered depth")
-    ] = None,
+    model: ModelArgument,
+    format: Format,
+    root: Root,
+    frames: Frames = None,
+    min_depth: MinDepth = 0.1,
+    max_depth: MaxDepth = 10.0,
+    colour_camera: ColourCameraOption = None,
 ) -> None:
     """Where a model's error is: one wrong distance per view (median scaling) or depth steps (where delta1 fails)."""
-    from contract.geometry import ColourCamera
     from lab.diagnostics import diagnose_source
     from trainer.config import DataSource
 
     source = DataSource(format=format, root=root, frames=frames)
-    colour = ColourCamera.from_flow(colour_camera) if colour_camera else None
+    colour = parse_colour_camera(colour_camera) if colour_camera else None
     typer.echo(diagnose_source(model, source, (min_depth, max_depth), colour))
 
 
@@ -92,9 +101,4 @@ def novelty(
 
 
 def main() -> None:
-    """Run the CLI; mistakes a user can fix print one line and exit 1."""
-    try:
-        app()
-    except (OSError, ValueError) as e:
-        typer.echo(f"error: {e}", err=True)
-        raise SystemExit(1) from None
+    run_app(app)

@@ -27,8 +27,8 @@ from scipy.ndimage import maximum_filter, minimum_filter
 from contract.geometry import ColourCamera
 from trainer.config import DataSource
 from trainer.data.frames import Frame
-from trainer.data.sources import describe, open_source
-from trainer.evaluate import evaluate_frames, load_predictor, markdown_table
+from trainer.data.sources import describe
+from trainer.evaluate import markdown_table, score_source
 from trainer.metrics import MetricAccumulator
 
 STEP_RATIO = 1.25
@@ -129,17 +129,8 @@ def diagnose_source(
     model: Path, source: DataSource, depth_range: tuple[float, float], colour_camera: ColourCamera | None
 ) -> str:
     """``rgb2cloud-lab diagnose``: the paper's row, the median-scaled row and where delta1 fails, as text."""
-    predict, label = load_predictor(model)
-    median_scaled, where_fails = MedianScaled(*depth_range), WhereFails()
-    result, _, _ = evaluate_frames(
-        predict,
-        open_source(source),
-        min_m=depth_range[0],
-        max_m=depth_range[1],
-        progress=True,
-        colour_camera=colour_camera,
-        diagnostics=[median_scaled, where_fails],
-    )
+    diagnostics = [MedianScaled(*depth_range), WhereFails()]
+    result, _, _, label = score_source(model, source, depth_range, colour_camera=colour_camera, diagnostics=diagnostics)
     scaled = result["median_scaled"]
     ratio = scaled["ratio"]
     return "\n".join(

@@ -12,13 +12,14 @@ from conftest import REPO
 
 PACKAGES = ("contract", "app", "trainer", "lab", "cli")
 #: Who may import whom. The contract is the base; the service and the trainer stand on it apart;
-#: the CLI assembles both; the research tooling stands on everything and nothing stands on it.
+#: the CLI assembles both; the research tooling stands on everything (its CLI shares the product's
+#: options) and nothing stands on it.
 ALLOWED = {
     "contract": set(),
     "app": {"contract"},
     "trainer": {"contract"},
     "cli": {"contract", "app", "trainer"},
-    "lab": {"contract", "trainer"},
+    "lab": {"contract", "trainer", "cli"},
 }
 
 

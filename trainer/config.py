@@ -62,9 +62,6 @@ class OptimConfig(_Strict):
         return self.lr * max(0.0, 1.0 - (step - self.decay_start) / self.decay_steps)
 
 
-FORMATS = ("7scenes", "tum", "nyu", "csv")
-
-
 class DataSource(_Strict):
     """One dataset on disk. ``root`` is a folder, or a file for nyu and csv."""
 

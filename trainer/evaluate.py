@@ -194,6 +194,31 @@ def write_report(
     return table
 
 
+def score_source(
+    model: Path,
+    source: DataSource,
+    depth_range: tuple[float, float],
+    *,
+    inference: dict[str, Any] | None = None,
+    samples: int = 0,
+    colour_camera: ColourCamera | None = None,
+    diagnostics: Sequence[Diagnostic] = (),
+) -> tuple[dict, list[dict], list[tuple[np.ndarray, np.ndarray, np.ndarray]], str]:
+    """``evaluate_frames`` of a checkpoint or version on a data source, with the model's label."""
+    predict, label = load_predictor(model, inference)
+    result, per_image, grid = evaluate_frames(
+        predict,
+        open_source(source),
+        min_m=depth_range[0],
+        max_m=depth_range[1],
+        samples=samples,
+        progress=True,
+        colour_camera=colour_camera,
+        diagnostics=diagnostics,
+    )
+    return result, per_image, grid, label
+
+
 def evaluate_source(
     model: Path,
     source: DataSource,
@@ -204,15 +229,8 @@ def evaluate_source(
     colour_camera: ColourCamera | None = None,
 ) -> str:
     """``rgb2cloud evaluate``: score ``model`` on ``source``, write the reports to ``out``, return the table."""
-    predict, label = load_predictor(model, inference)
-    result, per_image, grid = evaluate_frames(
-        predict,
-        open_source(source),
-        min_m=depth_range[0],
-        max_m=depth_range[1],
-        samples=samples,
-        progress=True,
-        colour_camera=colour_camera,
+    result, per_image, grid, label = score_source(
+        model, source, depth_range, inference=inference, samples=samples, colour_camera=colour_camera
     )
     if colour_camera:
         label += ", read at the colour camera"
