@@ -18,10 +18,12 @@ from pathlib import Path
 
 import httpx
 
+#: The folder the child starts in, so a relative RGB2CLOUD_REGISTRY means what it does for ``make serve``.
 REPO = Path(__file__).resolve().parents[1]
 
 
 def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on right now."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
@@ -29,6 +31,8 @@ def free_port() -> int:
 
 @dataclass(frozen=True)
 class Service:
+    """A started service: where to reach it, and its process id (to measure or signal it)."""
+
     url: str
     pid: int
 
