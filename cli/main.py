@@ -1,4 +1,4 @@
-"""The ``rgb2cloud`` command line: train, evaluate, export, baselines, calibrate, client.
+"""The ``rgb2cloud`` command line: fit, train, evaluate, export, baselines, calibrate, client.
 
 Each command parses its options, calls one function of the trainer or the client,
 and prints. Heavy imports happen inside each command, so ``rgb2cloud --help`` is
@@ -106,16 +106,77 @@ def export(
     """Export ONNX + TorchScript, check parity with eager PyTorch, publish a version."""
     from contract.card import load_card
     from contract.spec import parse_inference_options
-    from trainer.export import export_and_publish
+    from trainer.export import export_and_publish, metrics_from_report
 
     changes = parse_inference_options(inference)
-    target = export_and_publish(checkpoint, registry, name, version, metrics, parity_image, changes)
+    scores = [metrics_from_report(path) for path in metrics]
+    target = export_and_publish(checkpoint, registry, name, version, scores, parity_image, changes)
     card = load_card(target)
     for file_name, digest in card.files.items():
         typer.echo(f"{file_name}  sha256 {digest}")
     for check, diff in card.parity.items():
         typer.echo(f"parity {check}: max abs diff {diff:.2e}")
     typer.echo(f"published {target}")
+
+
+@app.command()
+def fit(
+    data: Annotated[Path, typer.Argument(help="the recording: a folder (color/ + depth/, TUM, 7-Scenes) or a file")],
+    name: Annotated[str, typer.Option(help="the model's name in the registry")],
+    licence: Annotated[str, typer.Option(help="the terms the recording may be used under (required)")],
+    budget: Annotated[float, typer.Option(help="minutes, wall clock, for the whole command", min=1)] = 30.0,
+    from_: Annotated[
+        str | None,
+        typer.Option(
+            "--from", help="a published version folder to start from, or 'scratch' (default: the bundled base)"
+        ),
+    ] = None,
+    registry: Annotated[Path, typer.Option(help="registry to publish into")] = Path("weights"),
+    format: Annotated[str | None, typer.Option(help="folders | tum | 7scenes | nyu | csv (default: detected)")] = None,
+    fx: Annotated[float | None, typer.Option(help="focal length x in pixels (overrides intrinsics.json)")] = None,
+    fy: Annotated[float | None, typer.Option(help="focal length y in pixels")] = None,
+    cx: Annotated[float | None, typer.Option(help="principal point x in pixels")] = None,
+    cy: Annotated[float | None, typer.Option(help="principal point y in pixels")] = None,
+    depth_scale: Annotated[float | None, typer.Option(help="raw depth units per metre (1000: millimetres)")] = None,
+    holdout: Annotated[
+        str | None, typer.Option(help="held-out frames instead of the last 20%: names, globs or ranges, e.g. 'test*'")
+    ] = None,
+    gap: Annotated[
+        int | None, typer.Option(help="frames dropped next to the held-out ones (default 5%)", min=0)
+    ] = None,
+    register: Annotated[
+        str, typer.Option(help="auto: register depth to colour when a fitted colour camera aligns better; yes; no")
+    ] = "auto",
+    out: Annotated[Path | None, typer.Option(help="run folder (default runs/fit/NAME)")] = None,
+    resume: Annotated[bool, typer.Option(help="continue an interrupted fit from its last checkpoint")] = False,
+) -> None:
+    """Fit a model of your space from a short RGB-D recording, score it honestly, and publish it."""
+    from trainer.data.folders import CameraFile
+    from trainer.fit.workflow import FitOptions
+    from trainer.fit.workflow import fit as run
+
+    if register not in ("auto", "yes", "no"):
+        raise typer.BadParameter(f"--register {register!r}: expected auto, yes or no")
+    options = FitOptions(
+        data=data,
+        name=name,
+        licence=licence,
+        budget_min=budget,
+        start=from_,
+        registry=registry,
+        format=format,
+        camera=CameraFile(fx, fy, cx, cy, depth_scale),
+        holdout=holdout,
+        gap_frames=gap,
+        registration=register,
+        out=out,
+        resume=resume,
+    )
+    try:
+        run(options, typer.echo)
+    except KeyboardInterrupt:
+        typer.echo("interrupted: the same command with --resume continues from the last checkpoint", err=True)
+        raise typer.Exit(130) from None
 
 
 @app.command()

@@ -77,6 +77,11 @@ class Metrics(BaseModel):
     """The paper's metrics on a named split, plus the mean point-cloud RMSE."""
 
     split: str = Field(min_length=1, description="dataset and frames, e.g. 7scenes-redkitchen 850-999")
+    label: str | None = Field(
+        None,
+        description="what was scored, when not this model: the model a fit started from, or an image-free "
+        "baseline, scored on the same frames for comparison",
+    )
     images: int = Field(gt=0)
     depth_range_m: tuple[float, float]
     rel: float
@@ -93,12 +98,25 @@ class Metrics(BaseModel):
     )
 
 
+class FitRecord(BaseModel):
+    """How ``rgb2cloud fit`` made a model of one place."""
+
+    data: str = Field(description="the recording's path as given")
+    started_from: str = Field(description="the published version whose generator it started from, or 'scratch'")
+    budget_min: float
+    split: dict[str, Any] = Field(description="train, selection, gap and held-out parts: frames, first, last")
+    registered_with: ColourCamera | None = Field(
+        None, description="the colour camera its depth was registered to, when the recording's was not"
+    )
+
+
 class Training(BaseModel):
     data: list[DataRef] = Field(min_length=1)
     steps: int
     duration_s: float
     hardware: str
     config: dict
+    fit: FitRecord | None = None
 
 
 class ModelCard(BaseModel):
@@ -189,6 +207,15 @@ def migrate_card(card: dict[str, Any]) -> dict[str, Any]:
             )
     inference = {key: generator.pop(key) for key in InferenceSettings.model_fields if key in generator}
     return {**card, "schema_version": SCHEMA_VERSION, "generator": generator, "inference": inference}
+
+
+def next_version(registry: Path, name: str) -> str:
+    """The version to publish next under ``name``: 0.1.0 first, then the newest release's next minor."""
+    releases = [v for v in list_versions(registry, name) if "-" not in v]
+    if not releases:
+        return "0.1.0"
+    major, minor, _ = (int(part) for part in releases[-1].split("."))
+    return f"{major}.{minor + 1}.0"
 
 
 def load_card(version_dir: Path) -> ModelCard:

@@ -13,6 +13,7 @@ from typing import Any
 import torch
 
 from contract.card import TORCHSCRIPT_FILE, load_card, verify_files
+from contract.spec import GeneratorSpec
 from trainer.config import RunConfig, migrate_config
 from trainer.inference import InferenceGraph
 from trainer.networks import GlobalGenerator
@@ -51,6 +52,20 @@ def load_graph(path: Path, inference: dict[str, Any] | None = None) -> tuple[Inf
     generator = GlobalGenerator(config.generator)
     generator.load_state_dict(state["generator"])  # strict: a spec that does not fit the weights fails loudly
     return InferenceGraph(generator, config.inference).eval(), config, state
+
+
+def load_generator_weights(path: Path, spec: GeneratorSpec) -> dict[str, Any]:
+    """The generator weights of a checkpoint or published version, to start a run from.
+
+    Only the generator carries over: a new place needs a discriminator that judges it
+    afresh. The spec must be the run's own, so the weights fit the network.
+    """
+    path = Path(path)
+    state = _published_state(path) if path.is_dir() else load_checkpoint(path)
+    theirs = RunConfig.model_validate(migrate_config(state["config"])).generator
+    if theirs != spec:
+        raise ValueError(f"{path}: its generator {theirs.model_dump()} is not this run's {spec.model_dump()}")
+    return state["generator"]
 
 
 def _published_state(version_dir: Path) -> dict[str, Any]:

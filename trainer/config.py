@@ -109,6 +109,11 @@ class LoopConfig(_Strict):
     checkpoint_every: int = Field(500, ge=1)
     select_metric: Literal["rel", "rmse", "log10", "delta1"] = "rel"
     threads: int | None = Field(None, ge=1, description="torch CPU threads per process")
+    init_from: Path | None = Field(
+        None,
+        description="start the generator from this published version folder or checkpoint (its generator "
+        "spec must be this run's); the discriminator starts fresh",
+    )
 
 
 class RunConfig(_Strict):

@@ -22,10 +22,22 @@ import numpy as np
 import torch
 from PIL import Image
 
-from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, Camera, DataRef, Metrics, ModelCard, Training, publish
+from contract.card import (
+    ONNX_FILE,
+    TORCHSCRIPT_FILE,
+    Camera,
+    DataRef,
+    FitRecord,
+    Metrics,
+    ModelCard,
+    Training,
+    publish,
+)
 from contract.codec import INPUT_ENCODING
 from contract.runtime import OnnxGenerator
 from trainer.checkpoint import load_graph
+from trainer.config import DataSource
+from trainer.data.frames import FrameReader
 from trainer.data.sources import describe, open_source
 from trainer.inference import EagerGenerator, InferenceGraph
 
@@ -130,14 +142,26 @@ def metrics_from_report(path: Path) -> Metrics:
     )
 
 
+def _data_ref(source: DataSource, reader: FrameReader) -> DataRef:
+    """The card's entry for one training source; a source without a licence cannot be published."""
+    if not reader.licence:
+        raise ValueError(f"training source {source.root} has no licence: set 'licence' in its data entry")
+    return DataRef(
+        name=describe(source), format=source.format, frames=source.frames or source.split, licence=reader.licence
+    )
+
+
 def export_and_publish(
     checkpoint: Path,
     registry: Path,
     name: str,
     version: str,
-    metrics_files: list[Path],
+    metrics: list[Metrics],
     parity_image: Path,
     inference: dict[str, Any] | None = None,
+    *,
+    data: list[DataRef] | None = None,
+    fit: FitRecord | None = None,
 ) -> Path:
     """Export, check parity, and publish ``<registry>/<name>/<version>/`` with its card.
 
@@ -145,25 +169,16 @@ def export_and_publish(
     weights, published again). ``inference`` changes the inference settings the
     checkpoint's config (or the version's card) has; the settings in use are baked
     into the exported graph and recorded in the card. A card from a published
-    version also names it in ``derived_from``.
+    version also names it in ``derived_from``. ``data`` replaces the card's data
+    entries made from the training sources, and ``fit`` records how ``rgb2cloud fit``
+    made the model.
     """
     target = Path(registry) / name / version
     if target.exists():
         raise FileExistsError(f"{target} already exists: versions are immutable, publish a new one")
     graph, config, state = load_graph(checkpoint, inference)
     readers = [open_source(s) for s in config.data.train]
-    data = []
-    for source, reader in zip(config.data.train, readers, strict=True):
-        if not reader.licence:
-            raise ValueError(f"training source {source.root} has no licence: set 'licence' in its data entry")
-        data.append(
-            DataRef(
-                name=describe(source),
-                format=source.format,
-                frames=source.frames or source.split,
-                licence=reader.licence,
-            )
-        )
+    data = data or [_data_ref(source, reader) for source, reader in zip(config.data.train, readers, strict=True)]
     camera = readers[0][0].intrinsics
     with Image.open(parity_image) as im:
         image = np.asarray(im.convert("RGB"))
@@ -190,8 +205,9 @@ def export_and_publish(
                 duration_s=round(state["train_seconds"], 1),
                 hardware=state["hardware"],
                 config=config.model_dump(mode="json", exclude={"inference"}),
+                fit=fit,
             ),
-            metrics=[metrics_from_report(p) for p in metrics_files],
+            metrics=metrics,
             trainer_commit=trainer_commit(),
             parity=parity,
             derived_from=state.get("published"),

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,7 +29,7 @@ from torch.utils.data import DataLoader
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
-from trainer.checkpoint import load_checkpoint, save_checkpoint
+from trainer.checkpoint import load_checkpoint, load_generator_weights, save_checkpoint
 from trainer.config import LossConfig, RunConfig, complete_config
 from trainer.data.dataset import ConcatFrames, StepBatchSampler, TrainingSet
 from trainer.data.sources import open_source
@@ -81,11 +82,24 @@ def _check_resumable(saved: dict, config: RunConfig) -> None:
             )
 
 
-def train(config: RunConfig, resume: bool = False) -> dict:
-    """Run (or continue) training; returns the run summary that is also written to disk."""
+def train(
+    config: RunConfig,
+    resume: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+    deadline: float | None = None,
+) -> dict:
+    """Run (or continue) training; returns the run summary that is also written to disk.
+
+    ``progress(step, steps)`` after each step replaces the run's own progress bar (``fit``
+    draws one bar for its whole command). At ``deadline`` (``time.monotonic()``), a
+    single-process run saves its checkpoint and stops early: a wall-clock budget holds
+    even when the machine runs slower than it was measured.
+    """
     ddp = setup_distributed("cuda" if config.train.device != "cpu" and torch.cuda.is_available() else "cpu")
+    if deadline is not None and ddp.world_size > 1:
+        raise ValueError("a deadline stops one process; under torchrun the ranks would part ways")
     try:
-        return _train(config, resume, ddp)
+        return _train(config, resume, ddp, progress, deadline)
     finally:
         if ddp.world_size > 1:
             leave_process_group()
@@ -206,7 +220,13 @@ def score_generator(
     return result, grid
 
 
-def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
+def _train(
+    config: RunConfig,
+    resume: bool,
+    ddp: Distributed,
+    report: Callable[[int, int], None] | None,
+    deadline: float | None,
+) -> dict:
     device = pick_device(config.train.device, ddp.local_rank)
     if config.train.threads:
         torch.set_num_threads(config.train.threads)
@@ -215,6 +235,8 @@ def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
     ckpt_dir = out / "checkpoints"
 
     generator, discriminator, opt_g, opt_d = build_networks(config, device)
+    if loop.init_from is not None and not resume:
+        generator.load_state_dict(load_generator_weights(loop.init_from, config.generator))
     amp = Precision.for_device(device, loop.amp)
     scaler = torch.amp.GradScaler(device.type, enabled=amp.scaled)
 
@@ -290,12 +312,12 @@ def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
         range(start_step, loop.steps),
         initial=start_step,
         total=loop.steps,
-        disable=not ddp.is_main,
+        disable=not ddp.is_main or report is not None,
         desc="train",
         unit="step",
         dynamic_ncols=True,
     )
-    window_seconds, window_images, logged = 0.0, 0, {}
+    window_seconds, window_images, logged, done = 0.0, 0, {}, start_step
     for step in progress:
         tick = time.perf_counter()
         for opt in (opt_g, opt_d):
@@ -311,7 +333,10 @@ def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
         window_seconds += elapsed
         window_images += n * ddp.world_size
         done = step + 1
-        if ddp.is_main and (done % loop.log_every == 0 or done == loop.steps):
+        last = done == loop.steps or (deadline is not None and time.monotonic() >= deadline)
+        if report is not None:
+            report(done, loop.steps)
+        if ddp.is_main and (done % loop.log_every == 0 or last):
             rate = window_images / window_seconds
             logged = {key: value.item() for key, value in losses.items()}
             for key, value in logged.items():
@@ -320,17 +345,19 @@ def _train(config: RunConfig, resume: bool, ddp: Distributed) -> dict:
             writer.add_scalar("images_per_s", rate, done)
             progress.set_postfix({k: f"{v:.3f}" for k, v in logged.items()} | {"img/s": f"{rate:.1f}"})
             window_seconds, window_images = 0.0, 0
-        if ddp.is_main and (done % loop.val_every == 0 or done == loop.steps):
+        if ddp.is_main and (done % loop.val_every == 0 or last):
             validate(done)
-        if ddp.is_main and (done % loop.checkpoint_every == 0 or done == loop.steps):
+        if ddp.is_main and (done % loop.checkpoint_every == 0 or last):
             save_checkpoint(ckpt_dir / "last.pt", checkpoint_state(done))
         if ddp.world_size > 1 and (done % loop.val_every == 0 or done % loop.checkpoint_every == 0):
             dist.barrier()  # keep ranks together while rank 0 validates or saves
+        if last:
+            break
 
     summary = {
-        "steps": loop.steps,
+        "steps": done,
         "train_seconds": round(train_seconds, 1),
-        "hardware": hardware_history(segments, loop.steps),
+        "hardware": hardware_history(segments, done),
         "best": best,
         "rank_weight_sha256": rank_digests(ddp, unwrap(generator), unwrap(discriminator)),
         "last_losses": logged,

@@ -1,0 +1,248 @@
+"""``rgb2cloud fit``: real frames written in the layouts people record, fitted end to end on a small budget."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+import torch
+from conftest import REPO, run_cli
+from PIL import Image
+
+from app.process import running_service
+from contract.card import load_card
+from contract.runtime import OnnxGenerator
+from trainer.checkpoint import load_generator_weights
+from trainer.data.folders import CameraFile, find_pairs, read_intrinsics_json
+from trainer.fit.budget import Plan, Workload, plan_training
+from trainer.fit.recording import detect_format, open_recording
+from trainer.fit.split import split_recording
+from trainer.inference import EagerGenerator, InferenceGraph
+from trainer.networks import GlobalGenerator
+
+MOSD = REPO.parent / "shared" / "data" / "mosd-tabletop"
+#: Frames are written at a quarter of their size, so a fit of a tiny model takes seconds a step.
+SCALE = 0.25
+#: How far past its budget a fit may end: the plan's estimates for scoring and export are
+#: measured on the bundled model's size, and process start-up and imports come on top.
+BUDGET_MARGIN_S = 30.0
+
+
+def write_recording(
+    root: Path, count: int, *, open3d: bool = True, timestamps: bool = False, depth_scale: float = 1000.0
+) -> Path:
+    """``count`` real mOSD frames in the folders layout, with intrinsics.json in one of its two forms."""
+    (root / "color").mkdir(parents=True)
+    (root / "depth").mkdir()
+    names = sorted(p.stem for p in (MOSD / "color").glob("learn*.jpg"))[:count]
+    for i, name in enumerate(names):
+        rgb = Image.open(MOSD / "color" / f"{name}.jpg").convert("RGB")
+        depth = Image.open(MOSD / "depth" / f"{name}.png")
+        size = (round(rgb.width * SCALE), round(rgb.height * SCALE))
+        colour_stem = f"{1000 + i / 30:.6f}" if timestamps else str(i)
+        depth_stem = f"{1000 + i / 30 + 0.004:.6f}" if timestamps else str(i)  # the streams are not in step
+        rgb.resize(size, Image.Resampling.BILINEAR).save(root / "color" / f"{colour_stem}.jpg")
+        raw = np.asarray(depth.resize(size, Image.Resampling.NEAREST), dtype=np.float64) * depth_scale / 1000.0
+        Image.fromarray(np.clip(raw, 0, 65535).astype(np.uint16)).save(root / "depth" / f"{depth_stem}.png")
+    f, c = 525.0 * SCALE, (319.5 + 0.5) * SCALE - 0.5
+    if open3d:
+        matrix = [f, 0, 0, 0, f, 0, c, (239.5 + 0.5) * SCALE - 0.5, 1]
+        intrinsics = {"width": size[0], "height": size[1], "intrinsic_matrix": matrix, "depth_scale": depth_scale}
+    else:
+        intrinsics = {"fx": f, "fy": f, "cx": c, "cy": (239.5 + 0.5) * SCALE - 0.5, "depth_scale": depth_scale}
+    (root / "intrinsics.json").write_text(json.dumps(intrinsics))
+    return root
+
+
+def fit_args(data: Path, tmp: Path, start: Path, budget: str = "1") -> list[str]:
+    return [
+        "fit",
+        str(data),
+        "--name",
+        "my-room",
+        "--licence",
+        "mOSD (research use), test copy",
+        "--budget",
+        budget,
+        "--from",
+        str(start),
+        "--registry",
+        str(tmp / "registry"),
+        "--out",
+        str(tmp / "run"),
+        "--register",
+        "no",
+    ]
+
+
+def refused(*args: str) -> str:
+    """``rgb2cloud ARGS`` that must fail with one error line (after the progress bar, on a terminal in place)."""
+    result = subprocess.run([sys.executable, "-m", "cli", *args], cwd=REPO, capture_output=True, text=True)
+    last = result.stderr.strip().splitlines()[-1]
+    assert result.returncode == 1 and last.startswith("error: "), result.stderr
+    assert "Traceback" not in result.stderr
+    return last
+
+
+def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path):
+    data = write_recording(tmp_path / "rec", 24, open3d=True, timestamps=True)
+    start = registry / "tiny" / "0.1.0"
+    began = time.monotonic()
+    stdout = run_cli(*fit_args(data, tmp_path, start)).stdout
+    assert time.monotonic() - began < 60 + BUDGET_MARGIN_S  # the budget holds
+    assert "pairs: 24 found, 0 skipped" in stdout and "split: train 16, selection 2" in stdout
+    assert "| fitted model |" in stdout and "| tiny 0.1.0, zero-shot (the start) |" in stdout
+    folder = tmp_path / "registry" / "my-room" / "0.1.0"
+    card = load_card(folder)
+    assert card.training.fit.started_from == str(start) and card.training.fit.budget_min == 1.0
+    split = card.training.fit.split
+    assert {part: split[part]["frames"] for part in split} == {"train": 16, "selection": 2, "gap": 1, "holdout": 5}
+    assert split["holdout"]["last"] == f"{1000 + 23 / 30:.6f}"  # the end of the recording, in time order
+    assert card.training.data[0].licence == "mOSD (research use), test copy"
+    labels = [m.label for m in card.metrics]
+    assert labels[0] is None and labels[1] == "tiny 0.1.0, zero-shot (the start)"
+    assert labels[2].startswith("baseline: constant") and labels[3] == "baseline: per-pixel train median"
+    assert all(m.images == 5 for m in card.metrics)
+    assert card.generator == load_card(start).generator
+    # The exact commands to serve it, and the service does.
+    assert f"RGB2CLOUD_REGISTRY={tmp_path / 'registry'} RGB2CLOUD_MODEL_NAME=my-room" in stdout
+    with running_service(registry=str(tmp_path / "registry"), model_name="my-room") as service:
+        photo = next((data / "color").iterdir()).read_bytes()
+        response = httpx.post(f"{service.url}/depth", files={"image": photo}, timeout=30)
+        assert response.status_code == 200 and response.headers["x-model-version"] == "0.1.0"
+    assert json.loads((tmp_path / "run" / "fit.json").read_text())["start"] == str(start)
+
+
+def test_an_interrupted_fit_resumes_where_it_stopped(registry, tmp_path):
+    data = write_recording(tmp_path / "rec", 24, open3d=False)
+    args = fit_args(data, tmp_path, registry / "tiny" / "0.1.0")
+    process = subprocess.Popen([sys.executable, "-m", "cli", *args], cwd=REPO, stderr=subprocess.PIPE, text=True)
+    last = tmp_path / "run" / "train" / "checkpoints" / "last.pt"
+    deadline = time.monotonic() + 120
+    while not last.exists() and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130 and "--resume" in stderr and "Traceback" not in stderr
+    stopped_at = torch.load(last, weights_only=True)["step"]
+    assert stopped_at > 0
+    assert "a fit is already there; add --resume" in refused(*args)
+    result = run_cli(*args, "--resume")
+    assert f"resuming at step {stopped_at} of" in result.stdout + result.stderr
+    card = load_card(tmp_path / "registry" / "my-room" / "0.1.0")
+    assert card.training.steps >= stopped_at
+
+
+def test_starting_from_a_published_version_reproduces_its_outputs_at_step_0(registry):
+    version = registry / "tiny" / "0.1.0"
+    card = load_card(version)
+    generator = GlobalGenerator(card.generator)
+    generator.load_state_dict(load_generator_weights(version, card.generator))
+    eager = EagerGenerator(InferenceGraph(generator.eval(), card.inference), card.input_multiple)
+    exported = OnnxGenerator(version / "generator.onnx", card.input_multiple)
+    rgb = np.asarray(Image.open(next((MOSD / "color").iterdir())).convert("RGB"))
+    np.testing.assert_allclose(eager.predict_raw(rgb), exported.predict_raw(rgb), atol=1e-4)
+    other = card.generator.model_copy(update={"ngf": 16})
+    with pytest.raises(ValueError, match="is not this run's"):
+        load_generator_weights(version, other)
+
+
+def test_layouts_are_detected_and_an_unknown_one_is_explained(tmp_path):
+    assert detect_format(write_recording(tmp_path / "rec", 2)) == "folders"
+    (tmp_path / "tum").mkdir()
+    (tmp_path / "tum" / "rgb.txt").write_text("")
+    (tmp_path / "tum" / "depth.txt").write_text("")
+    assert detect_format(tmp_path / "tum") == "tum"
+    assert detect_format(REPO.parent / "shared" / "data" / "7scenes-redkitchen") == "7scenes"
+    (tmp_path / "m.csv").write_text("")
+    assert detect_format(tmp_path / "m.csv") == "csv"
+    (tmp_path / "odd").mkdir()
+    (tmp_path / "odd" / "pictures").mkdir()
+    (tmp_path / "odd" / "notes.txt").write_text("")
+    message = refused("fit", str(tmp_path / "odd"), "--name", "x", "--licence", "y")
+    assert "cannot tell its layout (found notes.txt, pictures/)" in message and "color/" in message
+
+
+def test_pairs_match_by_name_or_by_nearest_timestamp(tmp_path):
+    root = tmp_path / "rec"
+    (root / "rgb").mkdir(parents=True)
+    (root / "depth").mkdir()
+    for stem in ("10.000", "10.033", "10.066", "10.500"):
+        (root / "rgb" / f"{stem}.png").write_bytes(b"")
+    for stem in ("10.005", "10.031", "10.070", "11.000"):
+        (root / "depth" / f"{stem}.png").write_bytes(b"")
+    pairs, skipped = find_pairs(root)
+    assert [(p.name, p.depth.stem) for p in pairs] == [("10.000", "10.005"), ("10.033", "10.031"), ("10.066", "10.070")]
+    assert skipped == [("10.500", "no depth image with this name or within the time tolerance")]
+    numbered = tmp_path / "numbered"
+    (numbered / "image").mkdir(parents=True)
+    (numbered / "depth").mkdir()
+    for stem in ("2", "10", "1"):  # frame numbers: time order is numeric, not text
+        (numbered / "image" / f"{stem}.jpg").write_bytes(b"")
+        (numbered / "depth" / f"{stem}.png").write_bytes(b"")
+    assert [p.name for p in find_pairs(numbered)[0]] == ["1", "2", "10"]
+
+
+def test_both_intrinsics_forms_and_command_line_overrides(tmp_path):
+    (tmp_path / "a.json").write_text(json.dumps({"intrinsic_matrix": [500, 0, 0, 0, 510, 0, 320, 240, 1]}))
+    (tmp_path / "b.json").write_text(json.dumps({"fx": 500, "fy": 510, "cx": 320, "cy": 240, "depth_scale": 5000}))
+    assert read_intrinsics_json(tmp_path / "a.json") == CameraFile(500, 510, 320, 240, None)
+    assert read_intrinsics_json(tmp_path / "b.json") == CameraFile(500, 510, 320, 240, 5000)
+    assert read_intrinsics_json(tmp_path / "b.json").merged(CameraFile(fx=600)).fx == 600
+    (tmp_path / "c.json").write_text(json.dumps({"fx": 500}))
+    with pytest.raises(ValueError, match="expected Open3D's intrinsic_matrix, or fx, fy, cx and cy"):
+        read_intrinsics_json(tmp_path / "c.json")
+    data = write_recording(tmp_path / "rec", 2)
+    (data / "intrinsics.json").unlink()
+    with pytest.raises(ValueError, match=r"no camera intrinsics .* pass --fx --fy --cx --cy"):
+        open_recording(data, None, CameraFile(), tmp_path)
+    pairs = open_recording(data, None, CameraFile(100, 100, 20, 15, 1000), tmp_path).pairs
+    assert (pairs[0].fx, pairs[0].cy, pairs[0].depth_scale) == (100, 15, 1000)
+
+
+def test_wrong_units_and_too_few_pairs_are_refused_with_what_to_do(tmp_path):
+    metres_as_millimetres = write_recording(tmp_path / "mm", 24, depth_scale=1000.0)
+    message = refused("fit", str(metres_as_millimetres), "--name", "x", "--licence", "y", "--depth-scale", "1")
+    assert "the median depth is" in message and "likely --depth-scale 1000" in message
+    few = write_recording(tmp_path / "few", 12)
+    assert "12 usable pairs; fit needs at least 20" in refused(
+        "fit", str(few), "--name", "x", "--licence", "y", "--register", "no"
+    )
+
+
+def test_the_split_is_time_ordered_with_a_gap_or_the_named_holdout(tmp_path):
+    pairs = open_recording(write_recording(tmp_path / "rec", 40), None, CameraFile(), tmp_path).pairs
+    split = split_recording(pairs)
+    assert (split.train[-1], split.selection, split.gap, split.holdout[0]) == (26, [27, 28, 29], [30, 31], 32)
+    assert max(split.train + split.selection) < min(split.gap) < min(split.holdout)
+    named = split_recording(pairs, holdout="30-39", gap_frames=0)
+    assert named.holdout == list(range(30, 40)) and named.gap == [] and named.selection == [27, 28, 29]
+    by_glob = split_recording(pairs, holdout="3?", gap_frames=2)
+    assert by_glob.holdout == list(range(30, 40)) and by_glob.gap == [28, 29]
+    with pytest.raises(ValueError, match="matches no frame name"):
+        split_recording(pairs, holdout="test*")
+
+
+def test_the_plan_spends_what_the_budget_leaves_and_refuses_a_budget_too_small():
+    work = Workload(selection_frames=4, holdout_frames=10, predict_s=0.5, scores_start=True, median_taps=25)
+    plan = plan_training(budget_s=600, spent_s=30, step_s=2.0, work=work)
+    # 600 - 30 - tail (3 x 10 x 0.5 + 20 + 60 + 15 = 110) - validation (5 x 4 x 0.5 = 10) = 450 s: 225 steps.
+    assert plan == Plan(
+        budget_s=600,
+        step_s=2.0,
+        train_s=450,
+        steps=225,
+        decay_start=112,
+        val_every=56,
+        checkpoint_every=22,
+        deadline_s=490,
+    )
+    with pytest.raises(ValueError, match="leaves no time to train"):
+        plan_training(budget_s=120, spent_s=30, step_s=2.0, work=work)

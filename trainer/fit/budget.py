@@ -1,0 +1,149 @@
+"""A wall-clock budget turned into a training plan: steps, learning-rate schedule, checkpoints.
+
+The step time depends on the machine, the image size and the threads, so it is
+measured on the run's own data before anything is planned: a few real steps, and a
+few predictions, on throwaway networks. The plan leaves room for validation and for
+what follows training (scoring the held-out frames, export and its parity check),
+and decays the learning rate to zero over the second half of the steps, as pix2pixHD
+does over its last epochs.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+import torch
+
+from trainer.config import RunConfig
+from trainer.data.sources import open_source
+from trainer.data.transforms import resize_frame
+from trainer.devices import Distributed, pick_device
+from trainer.inference import EagerGenerator, InferenceGraph
+from trainer.losses import GANLoss
+from trainer.train import Precision, build_networks, gan_step, training_loader
+
+#: Runs timed after one warm-up run; their median is the plan's figure.
+MEASURED_RUNS = 3
+#: Times the selection frames are scored during training (and once before it).
+VALIDATIONS = 4
+#: Export and its parity check, on 2 CPU cores: mostly tracing the graph, and a colour-weighted median
+#: adds a sorting network per tap. Measured: 12.7 s for a graph without a median, 50.7 s with 5x5 taps;
+#: these figures carry a margin of about half again.
+EXPORT_BASE_S = 20.0
+EXPORT_PER_TAP_S = 2.4
+#: Reading the train frames for the baselines, and the rest of scoring, beside the predictions.
+SCORING_OVERHEAD_S = 15.0
+#: Share of the steps over which the learning rate decays linearly to zero.
+DECAY_SHARE = 0.5
+#: Checkpoints (for --resume) at least this often, in seconds of training.
+CHECKPOINT_SECONDS = 120.0
+
+
+@dataclass(frozen=True)
+class Plan:
+    """How a fit spends its budget; saved beside the run, so ``--resume`` continues the same plan."""
+
+    budget_s: float
+    step_s: float
+    train_s: float
+    steps: int
+    decay_start: int
+    val_every: int
+    checkpoint_every: int
+    #: Seconds after the start of the command by which training must stop.
+    deadline_s: float
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    def line(self) -> str:
+        return (
+            f"plan: {self.steps} steps of {self.step_s:.2f} s ({self.train_s / 60:.1f} of {self.budget_s / 60:.1f} "
+            f"min), learning rate decaying to zero from step {self.decay_start}"
+        )
+
+
+def measure_seconds(config: RunConfig) -> tuple[float, float]:
+    """Median seconds of one training step, and of one prediction on a selection frame, on this machine."""
+    device = pick_device(config.train.device, 0)
+    if config.train.threads:
+        torch.set_num_threads(config.train.threads)
+    generator, discriminator, opt_g, opt_d = build_networks(config, device)
+    amp = Precision.for_device(device, config.train.amp)
+    scaler = torch.amp.GradScaler(device.type, enabled=amp.scaled)
+    quiet = config.model_copy(update={"train": config.train.model_copy(update={"num_workers": 0})})
+    batches = iter(training_loader(quiet, Distributed(), 0, pin_memory=False))
+    gan_loss = GANLoss(config.loss.gan_mode)
+
+    def step() -> None:
+        batch = {k: v.to(device) for k, v in next(batches).items()}
+        gan_step(generator, discriminator, (opt_g, opt_d), scaler, gan_loss, config.loss, batch, amp)
+
+    frame = open_source(config.data.val[0])[0]
+    height, width = frame.depth.shape
+    frame = resize_frame(frame, round(height * config.data.val_scale), round(width * config.data.val_scale))
+    runner = EagerGenerator(InferenceGraph(generator, config.inference), config.generator.input_multiple)
+    return _timed(step, device), _timed(lambda: runner.predict_raw(frame.rgb), device)
+
+
+def _timed(work: Callable[[], object], device: torch.device) -> float:
+    """Median seconds of ``work`` over MEASURED_RUNS runs after one warm-up run (allocations, kernel choice)."""
+    seconds = []
+    for i in range(MEASURED_RUNS + 1):
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        start = time.perf_counter()
+        work()
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        if i:
+            seconds.append(time.perf_counter() - start)
+    return statistics.median(seconds)
+
+
+@dataclass(frozen=True)
+class Workload:
+    """What the plan must leave time for besides training steps."""
+
+    selection_frames: int
+    holdout_frames: int
+    predict_s: float
+    scores_start: bool
+    median_taps: int
+
+    def validation_s(self) -> float:
+        """The selection frames scored VALIDATIONS times, plus once before the first step."""
+        return (VALIDATIONS + 1) * self.selection_frames * self.predict_s
+
+    def tail_s(self) -> float:
+        """Scoring the held-out frames (the fitted model, and the start on ONNX Runtime), then export."""
+        models = 1 + (2 if self.scores_start else 0)  # the start's ONNX graph runs about twice as slow on CPU
+        export_s = EXPORT_BASE_S + EXPORT_PER_TAP_S * self.median_taps
+        return models * self.holdout_frames * self.predict_s + export_s + SCORING_OVERHEAD_S
+
+
+def plan_training(budget_s: float, spent_s: float, step_s: float, work: Workload) -> Plan:
+    """Steps that fit what is left of the budget once validation, scoring and export are set aside."""
+    train_s = budget_s - spent_s - work.tail_s() - work.validation_s()
+    steps = int(train_s / step_s)
+    if steps < 1:
+        raise ValueError(
+            f"the budget of {budget_s / 60:.1f} min leaves no time to train: {spent_s:.0f} s went to reading and "
+            f"checking the data, {work.tail_s() + work.validation_s():.0f} s are needed to validate, score and "
+            f"export, and one step takes {step_s:.1f} s; give a larger --budget"
+        )
+    # Often enough that an interruption loses little: every CHECKPOINT_SECONDS, and ten times a run at least.
+    per_checkpoint = max(1, min(int(CHECKPOINT_SECONDS / step_s), steps // 10))
+    return Plan(
+        budget_s=budget_s,
+        step_s=step_s,
+        train_s=train_s,
+        steps=steps,
+        decay_start=round(steps * (1 - DECAY_SHARE)),
+        val_every=max(1, steps // VALIDATIONS),
+        checkpoint_every=min(per_checkpoint, steps),
+        deadline_s=budget_s - work.tail_s(),
+    )

@@ -1,0 +1,158 @@
+"""A recording of one place, whatever layout it came in, as colour/depth file pairs in time order.
+
+``fit`` writes its splits as CSV manifests of these pairs (``trainer.data.manifest``),
+so the trainer reads every layout the same way and the split is a file anyone can open.
+NYU's ``.mat`` holds arrays, not files: its frames are written out as PNGs first.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from trainer.data.folders import CameraFile, find_pairs, is_folders_layout, read_intrinsics_json
+from trainer.data.manifest import COLUMNS, ManifestReader
+from trainer.data.nyu import NyuReader
+from trainer.data.sevenscenes import SevenScenesReader
+from trainer.data.tum import DEPTH_UNITS_PER_METRE, TumReader
+
+FORMATS = ("folders", "tum", "7scenes", "nyu", "csv")
+
+
+@dataclass(frozen=True)
+class RecordedPair:
+    """One colour/depth pair on disk, with its depth units and camera."""
+
+    name: str
+    rgb: Path
+    depth: Path
+    depth_scale: float
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+
+@dataclass
+class Recording:
+    """The pairs of one recording in time order, what was skipped and why, and where it came from."""
+
+    root: Path
+    format: str
+    pairs: list[RecordedPair]
+    skipped: list[tuple[str, str]]
+    licence: str | None
+
+
+def detect_format(root: Path) -> str:
+    """The layout of ``root``, or a ValueError that says what was found and what was expected."""
+    root = Path(root)
+    if not root.exists():
+        raise ValueError(f"{root}: no such file or folder")
+    if root.is_file():
+        if root.suffix == ".csv":
+            return "csv"
+        if root.suffix == ".mat":
+            return "nyu"
+        raise ValueError(f"{root}: a file, but not a .csv manifest or an NYU .mat")
+    if is_folders_layout(root):
+        return "folders"
+    if (root / "rgb.txt").is_file() and (root / "depth.txt").is_file():
+        return "tum"
+    if any(root.glob("frame-*.color.*")):
+        return "7scenes"
+    found = sorted(p.name + ("/" if p.is_dir() else "") for p in root.iterdir())[:8]
+    raise ValueError(
+        f"{root}: cannot tell its layout (found {', '.join(found) or 'nothing'}); expected color/ (or rgb/, "
+        "image/) and depth/ folders, a TUM sequence (rgb.txt, depth.txt), 7-Scenes frame-NNNNNN.color.jpg "
+        "files, a .csv manifest or an NYU .mat; or pass --format"
+    )
+
+
+def open_recording(root: Path, format: str | None, camera: CameraFile, scratch: Path) -> Recording:
+    """Every pair of the recording at ``root``; ``camera`` overrides its intrinsics and depth scale.
+
+    ``scratch`` is where NYU's frames are written out as files.
+    """
+    root = Path(root)
+    format = format or detect_format(root)
+    if format not in FORMATS:
+        raise ValueError(f"--format {format!r}: expected one of {', '.join(FORMATS)}")
+    if format == "folders":
+        return _folders(root, camera)
+    if format == "csv":
+        reader = ManifestReader(root)
+        base = reader.path.parent
+        pairs = [
+            _pair(Path(rgb).stem, base / rgb, base / depth, CameraFile(**numbers).merged(camera), root)
+            for rgb, depth, numbers in reader.rows
+        ]
+        return Recording(root, format, pairs, [], None)
+    if format == "tum":
+        reader = TumReader(root)
+        k = reader.intrinsics
+        own = CameraFile(k.fx, k.fy, k.cx, k.cy, DEPTH_UNITS_PER_METRE).merged(camera)
+        pairs = [_pair(f"{t:.6f}", root / rgb, root / depth, own, root) for (t, rgb), (_, depth) in reader.pairs]
+        return Recording(root, format, pairs, [], reader.licence)
+    if format == "7scenes":
+        reader = SevenScenesReader(root)
+        k = reader.intrinsics
+        own = CameraFile(k.fx, k.fy, k.cx, k.cy, 1000.0).merged(camera)
+        pairs = [
+            _pair(f"{n:06d}", path, path.with_name(f"frame-{n:06d}.depth.png"), own, root)
+            for n, path in zip(reader.frame_numbers, reader.colour_paths, strict=True)
+        ]
+        return Recording(root, format, pairs, [], reader.licence)
+    return _nyu(root, camera, scratch)
+
+
+def _pair(name: str, rgb: Path, depth: Path, camera: CameraFile, root: Path) -> RecordedPair:
+    missing = [key for key in ("fx", "fy", "cx", "cy") if getattr(camera, key) is None]
+    if missing:
+        raise ValueError(
+            f"{root}: no camera intrinsics ({', '.join(missing)} missing): add an intrinsics.json "
+            "(Open3D's PinholeCameraIntrinsic, or fx, fy, cx, cy) or pass --fx --fy --cx --cy"
+        )
+    scale = camera.depth_scale if camera.depth_scale is not None else 1000.0
+    return RecordedPair(name, rgb.resolve(), depth.resolve(), scale, camera.fx, camera.fy, camera.cx, camera.cy)
+
+
+def _folders(root: Path, camera: CameraFile) -> Recording:
+    pairs, skipped = find_pairs(root)
+    if not pairs:
+        raise ValueError(f"{root}: no colour image has a depth image ({len(skipped)} colour images, none paired)")
+    intrinsics = root / "intrinsics.json"
+    own = read_intrinsics_json(intrinsics).merged(camera) if intrinsics.is_file() else camera
+    return Recording(root, "folders", [_pair(p.name, p.rgb, p.depth, own, root) for p in pairs], skipped, None)
+
+
+def _nyu(root: Path, camera: CameraFile, scratch: Path) -> Recording:
+    reader = NyuReader(root, "all")
+    folder = scratch / "nyu-frames"
+    folder.mkdir(parents=True, exist_ok=True)
+    pairs = []
+    for i in range(len(reader)):
+        frame = reader[i]
+        rgb, depth = folder / f"{i:05d}.png", folder / f"{i:05d}.depth.png"
+        if not depth.exists():
+            Image.fromarray(frame.rgb).save(rgb)
+            Image.fromarray(np.clip(np.rint(frame.depth * 1000), 0, 65535).astype(np.uint16)).save(depth)
+        k = frame.intrinsics
+        own = CameraFile(k.fx, k.fy, k.cx, k.cy, 1000.0).merged(replace(camera, depth_scale=None))
+        pairs.append(_pair(f"{i:05d}", rgb, depth, own, root))
+    return Recording(root, "nyu", pairs, [], reader.licence)
+
+
+def write_manifest(path: Path, pairs: list[RecordedPair]) -> Path:
+    """A CSV manifest of ``pairs`` with absolute paths, as ``trainer.data.manifest`` reads it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(COLUMNS)
+        for p in pairs:
+            writer.writerow([p.rgb, p.depth, p.depth_scale, p.fx, p.fy, p.cx, p.cy])
+    return path

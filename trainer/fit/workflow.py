@@ -1,0 +1,285 @@
+"""``rgb2cloud fit`` from start to end: read, check, split, plan, train, score, publish.
+
+Everything a fit decides is written to its run folder before training starts
+(``fit.json``, and the split as CSV manifests), so ``--resume`` after Ctrl-C or a crash
+continues the same plan from the last checkpoint instead of starting over.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from contract.card import DataRef, FitRecord, list_versions, load_card, next_version
+from contract.geometry import ColourCamera
+from trainer.config import DataSource, RunConfig, migrate_config
+from trainer.data.folders import CameraFile
+from trainer.fit.budget import Plan, Workload, measure_seconds, plan_training
+from trainer.fit.inspect import inspect_recording, read_pair
+from trainer.fit.recording import Recording, open_recording, write_manifest
+from trainer.fit.scoring import score_holdout
+from trainer.fit.split import Split, split_recording
+
+#: The registry shipped with rgb2cloud; ``--from`` defaults to its newest base model.
+BUNDLED_REGISTRY = Path(__file__).resolve().parents[2] / "weights"
+BASE_MODEL = "rgb2cloud-7scenes"
+#: The service shrinks photos above this many pixels for the generator; fit trains at the same scale.
+SERVICE_PIXELS = 640 * 480
+
+
+@dataclass
+class FitOptions:
+    data: Path
+    name: str
+    licence: str
+    budget_min: float = 30.0
+    start: str | None = None  # a published version folder, "scratch", or None for the bundled base model
+    registry: Path = Path("weights")
+    format: str | None = None
+    camera: CameraFile = field(default_factory=CameraFile)
+    holdout: str | None = None
+    gap_frames: int | None = None
+    registration: str = "auto"
+    out: Path | None = None
+    resume: bool = False
+
+    @property
+    def run_dir(self) -> Path:
+        return self.out or Path("runs") / "fit" / self.name
+
+
+def default_start() -> Path:
+    versions = list_versions(BUNDLED_REGISTRY, BASE_MODEL)
+    if not versions:
+        raise ValueError(f"{BUNDLED_REGISTRY}: no bundled {BASE_MODEL} to start from; pass --from")
+    return BUNDLED_REGISTRY / BASE_MODEL / versions[-1]
+
+
+def start_config(start: Path) -> dict[str, Any]:
+    """The starting version's recipe: its training config with its generator spec and inference settings."""
+    card = load_card(start)
+    tree = migrate_config(card.training.config)
+    return {
+        **tree,
+        "generator": card.generator.model_dump(mode="json"),
+        "inference": card.inference.model_dump(mode="json"),
+    }
+
+
+class Progress:
+    """One bar for the whole command: its phase, the seconds of budget used, and the ETA."""
+
+    def __init__(self, budget_s: float, started: float):
+        self.started = started
+        fmt = "{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]"
+        self.bar = tqdm(total=round(budget_s), desc="reading", bar_format=fmt, dynamic_ncols=True)
+
+    def phase(self, name: str) -> None:
+        self.bar.set_description(name)
+        self.tick()
+
+    def tick(self, *_: int) -> None:
+        self.bar.n = min(self.bar.total, round(time.monotonic() - self.started))
+        self.bar.refresh()
+
+    def say(self, line: str) -> None:
+        self.bar.write(line)
+
+    def close(self) -> None:
+        self.tick()
+        self.bar.close()
+
+
+def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
+    """Fit a model of the recorded place; returns the published version folder."""
+    started = time.monotonic()
+    run = options.run_dir
+    state_file = run / "fit.json"
+    if options.resume and not state_file.is_file():
+        raise ValueError(f"{run}: nothing to resume (no fit.json); run without --resume")
+    if not options.resume and state_file.exists():
+        raise ValueError(f"{run}: a fit is already there; add --resume to continue it, or pass --out elsewhere")
+    if not options.licence.strip():
+        raise ValueError("--licence is required: the terms under which the recording may be used")
+    progress = Progress(options.budget_min * 60, started)
+    try:
+        if options.resume:
+            state = json.loads(state_file.read_text())
+            for line in state["report"]:
+                progress.say(line)
+        else:
+            state = _prepare(options, run, progress, started)
+            state_file.write_text(json.dumps(state, indent=2) + "\n")
+        return _train_score_publish(options, state, progress, echo)
+    finally:
+        progress.close()
+
+
+def _prepare(options: FitOptions, run: Path, progress: Progress, started: float) -> dict[str, Any]:
+    """Everything decided before training: the data checked and split, the config, the plan."""
+    recording = open_recording(options.data, options.format, options.camera, run)
+    progress.phase("inspecting")
+    inspection = inspect_recording(recording, registration=options.registration)
+    split = split_recording(recording.pairs, options.holdout, options.gap_frames)
+    report = [f"{recording.root} ({recording.format})", *inspection.lines(), split.line()]
+    for line in report:
+        progress.say(line)
+    start = None if options.start == "scratch" else Path(options.start) if options.start else default_start()
+    config = _run_config(options, recording, split, inspection.colour_camera, start, run)
+    progress.phase("measuring")
+    step_s, predict_s = measure_seconds(RunConfig.model_validate(config))
+    inference = RunConfig.model_validate(config).inference
+    taps = (2 * inference.median_radius + 1) ** 2 if inference.median_radius else 0
+    work = Workload(len(split.selection), len(split.holdout), predict_s, start is not None, taps)
+    plan = plan_training(options.budget_min * 60, time.monotonic() - started, step_s, work)
+    progress.say(plan.line())
+    train = config["train"]
+    train.update(steps=plan.steps, val_every=plan.val_every, checkpoint_every=plan.checkpoint_every)
+    config["optim"].update(decay_start=plan.decay_start, decay_steps=plan.steps - plan.decay_start)
+    return {
+        "report": [*report, plan.line()],
+        "data": str(options.data),
+        "format": recording.format,
+        "licence": options.licence,
+        "start": str(start) if start else "scratch",
+        "split": split.summary(recording.pairs),
+        "colour_camera": inspection.colour_camera.model_dump() if inspection.colour_camera else None,
+        "plan": plan.as_dict(),
+        "config": config,
+    }
+
+
+def _service_scale(recording: Recording) -> float:
+    """The scale the service runs this camera's photos at: 1, or less for photos over SERVICE_PIXELS."""
+    first = read_pair(recording.pairs[0])
+    height, width = first.depth.shape
+    return min(1.0, math.sqrt(SERVICE_PIXELS / (height * width)))
+
+
+def _run_config(
+    options: FitOptions,
+    recording: Recording,
+    split: Split,
+    colour: ColourCamera | None,
+    start: Path | None,
+    run: Path,
+) -> dict[str, Any]:
+    """The starting model's recipe on this recording's split, at the scale the service will see it."""
+    tree = start_config(start or default_start())
+    pairs = recording.pairs
+    manifests = {
+        part: write_manifest(run / f"{part}.csv", [pairs[i] for i in getattr(split, part)])
+        for part in ("train", "selection", "holdout")
+    }
+    source = {"format": "csv", "licence": options.licence, "colour_camera": colour.model_dump() if colour else None}
+    scale = _service_scale(recording)
+    first = read_pair(pairs[0])
+    spec = tree["generator"]
+    work, multiple = spec["work_scale"], 2 ** spec["n_downsample"]
+    height, width = first.depth.shape
+    size = [int(height * scale / work) // multiple * multiple, int(width * scale / work) // multiple * multiple]
+    tree["data"] = {
+        "train": [{**source, "root": str(manifests["train"])}],
+        "val": [{**source, "root": str(manifests["selection"])}],
+        "val_scale": scale,
+        "transform": {**tree["data"]["transform"], "size": size, "scale": [scale / work, 1.1 * scale / work]},
+        "eval_min_m": tree["data"]["eval_min_m"],
+        "eval_max_m": tree["data"]["eval_max_m"],
+    }
+    tree["train"] = {
+        "out_dir": str(run / "train"),
+        "steps": 1,
+        "batch_size": 4,
+        "num_workers": 1,
+        "seed": 0,
+        "device": "auto",
+        "amp": True,
+        "threads": os.cpu_count(),
+        "log_every": 10,
+        "select_metric": "rel",
+        "init_from": str(start) if start else None,
+    }
+    return RunConfig.model_validate(tree).model_dump(mode="json")
+
+
+def _train_score_publish(options: FitOptions, state: dict[str, Any], progress: Progress, echo) -> Path:
+    from trainer.export import export_and_publish
+    from trainer.train import train
+
+    config = RunConfig.model_validate(state["config"])
+    plan = Plan(**state["plan"])
+    progress.phase("training")
+    deadline = progress.started + plan.deadline_s
+    if options.resume:  # a fresh stretch of the budget for what is left: at most the whole training time
+        deadline = time.monotonic() + plan.train_s
+        done = _checkpoint_step(Path(config.train.out_dir) / "checkpoints" / "last.pt")
+        progress.say(f"resuming at step {done} of {plan.steps}")
+    summary = train(config, resume=options.resume, progress=progress.tick, deadline=deadline)
+    progress.say(f"trained {summary['steps']} steps in {summary['train_seconds'] / 60:.1f} min")
+
+    progress.phase("scoring")
+    checkpoints = Path(config.train.out_dir) / "checkpoints"
+    checkpoint = checkpoints / "best.pt" if (checkpoints / "best.pt").is_file() else checkpoints / "last.pt"
+    colour = ColourCamera.model_validate(state["colour_camera"]) if state["colour_camera"] else None
+    start = None if state["start"] == "scratch" else Path(state["start"])
+    holdout = DataSource(format="csv", root=Path(config.data.train[0].root).with_name("holdout.csv"))
+    table, metrics, warning = score_holdout(checkpoint, start, config, holdout, colour)
+    progress.say(table)
+    if warning:
+        progress.say(warning)
+
+    progress.phase("publishing")
+    version = next_version(options.registry, options.name)
+    record = FitRecord(
+        data=state["data"],
+        started_from=state["start"],
+        budget_min=options.budget_min,
+        split=state["split"],
+        registered_with=colour,
+    )
+    frames = sum(part["frames"] for part in state["split"].values())
+    data = [
+        DataRef(
+            name=Path(state["data"]).name, format=state["format"], frames=f"{frames} pairs", licence=state["licence"]
+        )
+    ]
+    parity_image = _first_rgb(holdout.root)
+    target = export_and_publish(
+        checkpoint, options.registry, options.name, version, metrics, parity_image, data=data, fit=record
+    )
+    progress.say(f"published {target}")
+    for line in _serve_lines(options.registry, options.name, version):
+        echo(line)
+    return target
+
+
+def _checkpoint_step(path: Path) -> int:
+    from trainer.checkpoint import load_checkpoint
+
+    if not path.is_file():
+        raise ValueError(f"{path}: no checkpoint to resume from yet; run the fit again without --resume")
+    return load_checkpoint(path)["step"]
+
+
+def _first_rgb(manifest: Path) -> Path:
+    with open(manifest) as f:
+        f.readline()
+        return Path(f.readline().split(",")[0])
+
+
+def _serve_lines(registry: Path, name: str, version: str) -> list[str]:
+    return [
+        "",
+        "Serve it, then ask it for depth and point clouds:",
+        f"  RGB2CLOUD_REGISTRY={registry} RGB2CLOUD_MODEL_NAME={name} RGB2CLOUD_MODEL_VERSION={version} make serve",
+        "  curl -sS -F image=@photo.jpg http://127.0.0.1:8000/depth -o depth.png",
+        '  curl -sS -F image=@photo.jpg "http://127.0.0.1:8000/pointcloud?stride=2" -o cloud.ply',
+    ]
