@@ -77,7 +77,7 @@ def main() -> None:
                 )
                 rows.append(
                     f"| {site} | {start} | {budget:g} | {minutes:.1f} | {fitted.delta1:.3f} | {fitted.rel:.3f} | "
-                    f"{fitted.pc_rmse_mean:.3f} | {zero_shot.delta1 if zero_shot else float('nan'):.3f} | "
+                    f"{fitted.pc_rmse_mean:.3f} | {f'{zero_shot.delta1:.3f}' if zero_shot else '—'} | "
                     f"{baseline.delta1:.3f} / {baseline.rel:.3f} |"
                 )
                 curves.setdefault(f"{site}, from {start}", []).append((budget, fitted.delta1))

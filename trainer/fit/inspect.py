@@ -69,9 +69,9 @@ class Inspection:
         ]
         if self.alignment_as_recorded is not None:
             verdict = (
-                f"not registered to colour: registered with colour camera {self.colour_camera.flow()}"
+                f"depth is not in the photo's view: registered to colour camera {self.colour_camera.flow()}"
                 if self.colour_camera
-                else "registered to colour"
+                else "depth is taken as in the photo's view already"
             )
             out.append(
                 f"registration: colour edges on depth steps {self.alignment_as_recorded:.3f} as recorded, "
