@@ -97,6 +97,26 @@ class Metrics(BaseModel):
         "pixel (evaluate --colour-camera, a model trained on registered depth); absent: pixel to pixel",
     )
 
+    @classmethod
+    def from_result(
+        cls,
+        result: dict[str, Any],
+        split: str,
+        depth_range_m: tuple[float, float],
+        colour_camera: ColourCamera | None = None,
+        label: str | None = None,
+    ) -> Metrics:
+        """An evaluation's table row (the trainer's ``evaluate_frames`` result) as a card entry."""
+        scores = {key: result[key] for key in ("rel", "rmse", "log10", "delta1", "delta2", "delta3", "pc_rmse_mean")}
+        return cls(
+            split=split,
+            label=label,
+            images=result["images"],
+            depth_range_m=depth_range_m,
+            colour_camera=colour_camera,
+            **scores,
+        )
+
 
 class FitRecord(BaseModel):
     """How ``rgb2cloud fit`` made a model of one place."""

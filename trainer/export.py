@@ -132,14 +132,8 @@ def trainer_commit() -> str:
 def metrics_from_report(path: Path) -> Metrics:
     """The card's metrics entry from an ``evaluate`` metrics.json."""
     report = json.loads(Path(path).read_text())
-    m = report["metrics"]
-    return Metrics(
-        split=report["split"],
-        images=m["images"],
-        depth_range_m=tuple(report["depth_range_m"]),
-        colour_camera=report.get("read_at_colour_camera"),
-        **{k: m[k] for k in ("rel", "rmse", "log10", "delta1", "delta2", "delta3", "pc_rmse_mean")},
-    )
+    range_m = tuple(report["depth_range_m"])
+    return Metrics.from_result(report["metrics"], report["split"], range_m, report.get("read_at_colour_camera"))
 
 
 def _data_ref(source: DataSource, reader: FrameReader) -> DataRef:

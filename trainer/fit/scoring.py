@@ -18,18 +18,6 @@ from trainer.data.sources import open_source
 from trainer.evaluate import evaluate_frames, load_predictor, markdown_table
 
 
-def _metrics(result: dict, split: str, depth_range: tuple[float, float], label: str | None, colour) -> Metrics:
-    keys = ("rel", "rmse", "log10", "delta1", "delta2", "delta3", "pc_rmse_mean")
-    return Metrics(
-        split=split,
-        label=label,
-        images=result["images"],
-        depth_range_m=depth_range,
-        colour_camera=colour,
-        **{k: result[k] for k in keys},
-    )
-
-
 def score_holdout(
     checkpoint: Path, start: Path | None, config: RunConfig, holdout: DataSource, colour: ColourCamera | None
 ) -> tuple[str, list[Metrics], str | None]:
@@ -47,7 +35,7 @@ def score_holdout(
         )
         rows[label] = result
         card_label = None if label == "fitted model" else label
-        metrics.append(_metrics(result, split, depth_range, card_label, colour))
+        metrics.append(Metrics.from_result(result, split, depth_range, colour, card_label))
     train = open_source(config.data.train[0].model_copy(update={"colour_camera": None}))
     fitted = fit_baselines(train)
     baselines = score_baselines(fitted, frames, *depth_range)
@@ -56,7 +44,7 @@ def score_holdout(
         ("per_pixel", "baseline: per-pixel train median"),
     ):
         rows[label] = baselines[key]
-        metrics.append(_metrics(baselines[key], split, depth_range, label, None))
+        metrics.append(Metrics.from_result(baselines[key], split, depth_range, label=label))
     how = "read at the colour camera" if colour else "pixel to pixel"
     table = (
         f"\nheld-out frames: {len(frames)}, ground truth in [{depth_range[0]}, {depth_range[1]}] m, {how}, "
