@@ -44,7 +44,8 @@ def report(
     ] = None,
 ) -> None:
     """Write quality.md: metrics beside the paper and baselines, curve, samples, experiments, an unseen scene."""
-    from lab.report import ReportInputs, build_report, read_experiments
+    from lab.experiments import read_experiments
+    from lab.report import ReportInputs, build_report
 
     compare = read_experiments(experiments) if experiments else {}
     inputs = ReportInputs(

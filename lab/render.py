@@ -9,6 +9,10 @@ a z-buffer are enough for that, and need no OpenGL on a headless machine.
 from __future__ import annotations
 
 import numpy as np
+from PIL import Image
+
+from contract.geometry import ColourCamera, colours, point_cloud, xyz
+from trainer.data.frames import Frame
 
 
 def _rotation(yaw_deg: float, pitch_deg: float) -> np.ndarray:
@@ -55,3 +59,18 @@ def render_points(
     winners = order[first]
     image.reshape(-1, 3)[pixel[winners]] = c[winners]
     return image
+
+
+def render_pair(pred: np.ndarray, frame: Frame, colour: ColourCamera | None = None) -> Image.Image:
+    """Predicted cloud | ground-truth cloud, one virtual side view about the truth's centre.
+
+    A prediction in the colour camera's view (``colour``) is back-projected with that camera.
+    """
+    truth = point_cloud(frame.depth, frame.rgb, frame.intrinsics, stride=2)
+    h, w = pred.shape
+    camera = colour.intrinsics(w, h) if colour else frame.intrinsics
+    predicted = point_cloud(pred, frame.rgb, camera, stride=2)
+    centre = np.median(xyz(truth), axis=0)
+    views = [render_points(xyz(cloud), colours(cloud), centre) for cloud in (predicted, truth)]
+    gap = np.full((views[0].shape[0], 8, 3), 255, dtype=np.uint8)
+    return Image.fromarray(np.concatenate([views[0], gap, views[1]], axis=1))

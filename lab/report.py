@@ -25,17 +25,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 from contract.card import ModelCard, load_card
-from contract.geometry import ColourCamera, colours, point_cloud, xyz
+from contract.geometry import ColourCamera
 from contract.spec import GeneratorSpec
 from lab.diagnostics import MedianScaled
-from lab.records import ScoreRecord, is_record, now, read_record, record_config, record_path, write_record
-from lab.render import render_points
+from lab.experiments import experiments_section
+from lab.records import ScoreRecord, is_record, now, read_record, record_path, write_record
+from lab.render import render_pair
 from trainer.baselines import fit_baselines, score_baselines
 from trainer.config import complete_config, load_config
-from trainer.data.frames import Frame
 from trainer.data.manifest import ManifestReader
 from trainer.data.sevenscenes import SevenScenesReader
 from trainer.evaluate import PAPER_TUM, beats, evaluate_frames, load_predictor, markdown_table
@@ -64,19 +63,6 @@ class ReportInputs:
     max_m: float = 10.0
 
 
-def read_experiments(path: Path) -> dict[str, Path]:
-    """The compared runs a YAML file names (label -> path), each checked to exist."""
-    import yaml
-
-    entries = yaml.safe_load(Path(path).read_text()) or {}
-    if not isinstance(entries, dict):
-        raise ValueError(f"{path}: expected a mapping of label -> path")
-    missing = [str(p) for p in entries.values() if not Path(p).exists()]
-    if missing:
-        raise ValueError(f"{path}: no such checkpoint, version or record: {', '.join(missing)}")
-    return {str(label): Path(p) for label, p in entries.items()}
-
-
 def training_config(path: Path) -> dict:
     """The complete run config a checkpoint or a published version was trained with.
 
@@ -90,32 +76,6 @@ def training_config(path: Path) -> dict:
     from trainer.checkpoint import load_checkpoint
 
     return complete_config(load_checkpoint(path)["config"])
-
-
-def config_diff(base: dict, other: dict, prefix: str = "") -> list[str]:
-    """``key: base -> other`` for every leaf that differs (output folders ignored)."""
-    lines = []
-    for key in sorted(set(base) | set(other)):
-        a, b = base.get(key), other.get(key)
-        name = f"{prefix}{key}"
-        if isinstance(a, dict) and isinstance(b, dict):
-            lines += config_diff(a, b, name + ".")
-        elif a != b and key != "out_dir":
-            lines.append(f"`{name}`: {_short(a)} → {_short(b)}")
-    return lines
-
-
-def _short(value: object) -> str:
-    """A config value for a table cell: data sources by their frames, not their whole entry."""
-    if value is None:
-        return "(default)"
-    if isinstance(value, list) and value and all(isinstance(v, dict) and "format" in v for v in value):
-        parts = []
-        for source in value:
-            registered = ", registered" if source.get("colour_camera") else ""
-            parts.append(f"{Path(str(source['root'])).name} {source.get('frames') or source.get('split')}{registered}")
-        return "[" + "; ".join(parts) + "]"
-    return str(value)
 
 
 def colour_camera_of(config: dict, root: Path) -> ColourCamera | None:
@@ -132,21 +92,6 @@ def colour_camera_of(config: dict, root: Path) -> ColourCamera | None:
     if len(cameras) > 1:
         raise ValueError(f"the run registered {root.name} to {len(cameras)} different colour cameras")
     return ColourCamera.model_validate(json.loads(cameras.pop())) if cameras else None
-
-
-def render_pair(pred: np.ndarray, frame: Frame, colour: ColourCamera | None = None) -> Image.Image:
-    """Predicted cloud | ground-truth cloud, one virtual side view about the truth's centre.
-
-    A prediction in the colour camera's view (``colour``) is back-projected with that camera.
-    """
-    truth = point_cloud(frame.depth, frame.rgb, frame.intrinsics, stride=2)
-    h, w = pred.shape
-    camera = colour.intrinsics(w, h) if colour else frame.intrinsics
-    predicted = point_cloud(pred, frame.rgb, camera, stride=2)
-    centre = np.median(xyz(truth), axis=0)
-    views = [render_points(xyz(cloud), colours(cloud), centre) for cloud in (predicted, truth)]
-    gap = np.full((views[0].shape[0], 8, 3), 255, dtype=np.uint8)
-    return Image.fromarray(np.concatenate([views[0], gap, views[1]], axis=1))
 
 
 def _score(
@@ -245,32 +190,6 @@ def _card_section(card: ModelCard, model_dir: Path) -> list[str]:
     ]
 
 
-def _experiments_section(base_config: dict, records: dict[str, ScoreRecord], paths: dict[str, Path]) -> list[str]:
-    """One row per compared run: what changed against the published model, and what it scored.
-
-    ``paths`` are the compared paths relative to the report's folder, for links.
-    """
-    lines = [
-        "## Experiments",
-        "",
-        "Each compared run above, by what its training differed in from the published model's (config keys, "
-        "published → compared; *retired* marks an option measured, not kept, and since removed from the code). "
-        "Stored records are in `docs/quality/compared/`, each naming the checkpoint it was scored from.",
-        "",
-        "| run | what changed | REL | δ1 |",
-        "|---|---|---|---|",
-    ]
-    for name, record in records.items():
-        config, retired = record_config(record.config)
-        changes = [f"`{key}`: {value} (retired)" for key, value in retired.items()]
-        changes += config_diff(base_config, config) or ([] if retired else ["(same training config)"])
-        source = f"[record]({paths[name]})" if is_record(paths[name]) else f"`{paths[name]}`"
-        lines.append(
-            f"| {name} ({source}) | {'; '.join(changes)} | {record.test['rel']:.3f} | {record.test['delta1']:.3f} |"
-        )
-    return [*lines, ""]
-
-
 def build_report(inputs: ReportInputs) -> Path:
     """Score everything, write the figures and ``quality.md``; returns the Markdown path."""
     out = Path(inputs.out)
@@ -320,7 +239,7 @@ def build_report(inputs: ReportInputs) -> Path:
         "",
         *_test_section(inputs, rows, ours, len(curves), colour),
         *_unseen_section(inputs, label, unseen_result, records, len(unseen)),
-        *_experiments_section(base_config, records, links),
+        *experiments_section(base_config, records, links),
         "## Reproduce",
         "",
         *_reproduce(inputs, card, colour, unseen),

@@ -18,17 +18,10 @@ from PIL import Image
 
 from contract.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
 from contract.spec import GeneratorSpec
+from lab.experiments import config_diff, experiments_section
 from lab.records import ScoreRecord, record_config
 from lab.render import render_points
-from lab.report import (
-    ReportInputs,
-    _compared,
-    _experiments_section,
-    _generator_words,
-    build_report,
-    colour_camera_of,
-    config_diff,
-)
+from lab.report import ReportInputs, _compared, _generator_words, build_report, colour_camera_of
 from trainer.config import complete_config, load_config
 from trainer.data.manifest import ManifestReader
 from trainer.data.sevenscenes import SevenScenesReader
@@ -234,7 +227,7 @@ def test_an_experiment_with_a_retired_option_still_says_what_it_changed():
         unseen_metrics=metrics,
         scored="then",
     )
-    lines = _experiments_section(base, {"weight average": record}, {"weight average": Path("quality/compared/x.json")})
+    lines = experiments_section(base, {"weight average": record}, {"weight average": Path("quality/compared/x.json")})
     assert (
         "| weight average ([record](quality/compared/x.json)) | `optim.ema`: 0.999 (retired); "
         "`loss.l1_depth`: 100.0 → 300.0 | 0.120 | 0.900 |"

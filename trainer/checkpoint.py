@@ -34,6 +34,13 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     return torch.load(path, map_location="cpu", weights_only=True)
 
 
+def load_state(path: Path) -> tuple[dict[str, Any], RunConfig]:
+    """A checkpoint's state, or a published version's stand-in for one, with its run config migrated."""
+    path = Path(path)
+    state = _published_state(path) if path.is_dir() else load_checkpoint(path)
+    return state, RunConfig.model_validate(migrate_config(state["config"]))
+
+
 def load_graph(path: Path, inference: dict[str, Any] | None = None) -> tuple[InferenceGraph, RunConfig, dict[str, Any]]:
     """The inference graph of a checkpoint or a published version, in eval mode, with its run config.
 
@@ -45,9 +52,7 @@ def load_graph(path: Path, inference: dict[str, Any] | None = None) -> tuple[Inf
     TorchScript file and a state rebuilt from its card, so a version whose training
     checkpoint is gone can still be run another way and published again.
     """
-    path = Path(path)
-    state = _published_state(path) if path.is_dir() else load_checkpoint(path)
-    config = RunConfig.model_validate(migrate_config(state["config"]))
+    state, config = load_state(path)
     config.inference = state.get("inference", config.inference).updated(inference or {})
     generator = GlobalGenerator(config.generator)
     generator.load_state_dict(state["generator"])  # strict: a spec that does not fit the weights fails loudly
@@ -60,9 +65,8 @@ def load_generator_weights(path: Path, spec: GeneratorSpec) -> dict[str, Any]:
     Only the generator carries over: a new place needs a discriminator that judges it
     afresh. The spec must be the run's own, so the weights fit the network.
     """
-    path = Path(path)
-    state = _published_state(path) if path.is_dir() else load_checkpoint(path)
-    theirs = RunConfig.model_validate(migrate_config(state["config"])).generator
+    state, config = load_state(path)
+    theirs = config.generator
     if theirs != spec:
         raise ValueError(f"{path}: its generator {theirs.model_dump()} is not this run's {spec.model_dump()}")
     return state["generator"]

@@ -30,8 +30,8 @@ MEASURED_RUNS = 3
 #: Times the selection frames are scored during training (and once before it).
 VALIDATIONS = 4
 #: Export and its parity check, on 2 CPU cores: mostly tracing the graph, and a colour-weighted median
-#: adds a sorting network per tap. Measured: 12.7 s for a graph without a median, 50.7 s with 5x5 taps;
-#: these figures carry a margin of about half again.
+#: adds a sorting network per tap. Measured with ``time rgb2cloud export VERSION_DIR ...``: 12.7 s for a
+#: graph without a median, 50.7 s with ``--inference median_radius=2``; these figures carry a margin.
 EXPORT_BASE_S = 20.0
 EXPORT_PER_TAP_S = 2.4
 #: Reading the train frames for the baselines, and the rest of scoring, beside the predictions.

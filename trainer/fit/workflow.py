@@ -22,6 +22,7 @@ from contract.card import DataRef, FitRecord, list_versions, load_card, next_ver
 from contract.geometry import ColourCamera
 from trainer.config import DataSource, RunConfig, migrate_config
 from trainer.data.folders import CameraFile
+from trainer.data.manifest import ManifestReader
 from trainer.fit.budget import Plan, Workload, measure_seconds, plan_training
 from trainer.fit.inspect import inspect_recording, read_pair
 from trainer.fit.recording import Recording, open_recording, write_manifest
@@ -157,13 +158,6 @@ def _prepare(options: FitOptions, run: Path, progress: Progress, started: float)
     }
 
 
-def _service_scale(recording: Recording) -> float:
-    """The scale the service runs this camera's photos at: 1, or less for photos over SERVICE_PIXELS."""
-    first = read_pair(recording.pairs[0])
-    height, width = first.depth.shape
-    return min(1.0, math.sqrt(SERVICE_PIXELS / (height * width)))
-
-
 def _run_config(
     options: FitOptions,
     recording: Recording,
@@ -180,11 +174,10 @@ def _run_config(
         for part in ("train", "selection", "holdout")
     }
     source = {"format": "csv", "licence": options.licence, "colour_camera": colour.model_dump() if colour else None}
-    scale = _service_scale(recording)
-    first = read_pair(pairs[0])
+    height, width = read_pair(pairs[0]).depth.shape
+    scale = min(1.0, math.sqrt(SERVICE_PIXELS / (height * width)))  # what the service shrinks this camera's photos to
     spec = tree["generator"]
     work, multiple = spec["work_scale"], 2 ** spec["n_downsample"]
-    height, width = first.depth.shape
     size = [int(height * scale / work) // multiple * multiple, int(width * scale / work) // multiple * multiple]
     tree["data"] = {
         "train": [{**source, "root": str(manifests["train"])}],
@@ -230,7 +223,7 @@ def _train_score_publish(options: FitOptions, state: dict[str, Any], progress: P
     checkpoint = checkpoints / "best.pt" if (checkpoints / "best.pt").is_file() else checkpoints / "last.pt"
     colour = ColourCamera.model_validate(state["colour_camera"]) if state["colour_camera"] else None
     start = None if state["start"] == "scratch" else Path(state["start"])
-    holdout = DataSource(format="csv", root=Path(config.data.train[0].root).with_name("holdout.csv"))
+    holdout = DataSource(format="csv", root=options.run_dir / "holdout.csv")
     table, metrics, warning = score_holdout(checkpoint, start, config, holdout, colour)
     progress.say(table)
     if warning:
@@ -251,7 +244,7 @@ def _train_score_publish(options: FitOptions, state: dict[str, Any], progress: P
             name=Path(state["data"]).name, format=state["format"], frames=f"{frames} pairs", licence=state["licence"]
         )
     ]
-    parity_image = _first_rgb(holdout.root)
+    parity_image = Path(ManifestReader(holdout.root).rows[0][0])  # the manifest holds absolute paths
     target = export_and_publish(
         checkpoint, options.registry, options.name, version, metrics, parity_image, data=data, fit=record
     )
@@ -267,12 +260,6 @@ def _checkpoint_step(path: Path) -> int:
     if not path.is_file():
         raise ValueError(f"{path}: no checkpoint to resume from yet; run the fit again without --resume")
     return load_checkpoint(path)["step"]
-
-
-def _first_rgb(manifest: Path) -> Path:
-    with open(manifest) as f:
-        f.readline()
-        return Path(f.readline().split(",")[0])
 
 
 def _serve_lines(registry: Path, name: str, version: str) -> list[str]:
