@@ -154,3 +154,25 @@ def test_csv_manifest(tmp_path):
     (tmp_path / "neg.csv").write_text("rgb,depth,depth_scale,fx,fy,cx,cy\na.jpg,a.png,1000,-5,51,3.5,2.5\n")
     with pytest.raises(ValueError, match=r"neg\.csv:2"):
         ManifestReader(tmp_path / "neg.csv")
+
+
+def test_folders_source_selects_frames_and_takes_a_camera(tmp_path):
+    """A training source in the folders layout: time order, a selection by glob or range, intrinsics filled in."""
+    (tmp_path / "rgb").mkdir()
+    (tmp_path / "depth").mkdir()
+    for n in (1, 2, 10):
+        Image.fromarray(_rgb(6, 8, n)).save(tmp_path / "rgb" / f"{n}.jpg")
+        save_png16(tmp_path / "depth" / f"{n}.png", np.full((6, 8), 500 * n))
+    camera = {"fx": 5.0, "fy": 5.0, "cx": 4.0, "cy": 3.0}
+    reader = open_source(DataSource(format="folders", root=tmp_path, frames="1-2", camera=camera))
+    assert [reader[i].name for i in range(len(reader))] == [f"{tmp_path.name}/2", f"{tmp_path.name}/10"]
+    np.testing.assert_allclose(reader[1].depth, 5.0)  # millimetres unless a depth_scale says otherwise
+    assert reader[0].intrinsics.fx == 5.0 and reader[0].intrinsics.width == 8
+    assert len(open_source(DataSource(format="folders", root=tmp_path, frames="1*", camera=camera))) == 2
+    with pytest.raises(ValueError, match="no intrinsics.json and no camera given"):
+        open_source(DataSource(format="folders", root=tmp_path))
+    (tmp_path / "intrinsics.json").write_text('{"fx": 6, "fy": 6, "cx": 4, "cy": 3, "depth_scale": 5000}')
+    own = open_source(DataSource(format="folders", root=tmp_path, frames="0"))
+    assert own[0].intrinsics.fx == 6.0 and own[0].depth[0, 0] == pytest.approx(0.1)
+    with pytest.raises(ValueError, match="match no frame name"):
+        open_source(DataSource(format="folders", root=tmp_path, frames="test*"))

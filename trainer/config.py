@@ -23,6 +23,7 @@ from contract.card import RETIRED_GENERATOR_OPTIONS
 from contract.codec import DepthEncoding
 from contract.geometry import ColourCamera
 from contract.spec import GeneratorSpec, InferenceSettings
+from trainer.data.folders import CameraFile
 
 
 class _Strict(BaseModel):
@@ -65,9 +66,17 @@ class OptimConfig(_Strict):
 class DataSource(_Strict):
     """One dataset on disk. ``root`` is a folder, or a file for nyu and csv."""
 
-    format: Literal["7scenes", "tum", "nyu", "csv"]
+    format: Literal["7scenes", "tum", "nyu", "csv", "folders"]
     root: Path
-    frames: str | None = Field(None, description="7scenes: inclusive ranges, e.g. '0-799' or '0-9,20-29'")
+    frames: str | None = Field(
+        None,
+        description="7scenes: inclusive ranges, e.g. '0-799' or '0-9,20-29'; folders: names, globs ('learn*') "
+        "or index ranges in time order",
+    )
+    camera: CameraFile | None = Field(
+        None, description="folders: fx, fy, cx, cy, depth_scale where intrinsics.json lacks them or is wrong"
+    )
+    repeat: int = Field(1, ge=1, description="training: read this source N times per epoch (weighs a short one)")
     split: Literal["train", "test", "all"] = Field("all", description="nyu: the official 795/654 split")
     splits_file: Path | None = Field(None, description="nyu: splits.mat (default: beside the .mat)")
     licence: str | None = Field(None, description="overrides the format's known licence")

@@ -144,7 +144,7 @@ def build_networks(
 
 def training_loader(config: RunConfig, ddp: Distributed, start_step: int, pin_memory: bool) -> DataLoader:
     """This rank's batches from ``start_step`` on, each rebuilt from the step number alone."""
-    frames = ConcatFrames([open_source(s) for s in config.data.train])
+    frames = ConcatFrames([reader for s in config.data.train for reader in [open_source(s)] * s.repeat])
     loop = config.train
     dataset = TrainingSet(frames, config.data.transform, config.depth, loop.seed)
     sampler = StepBatchSampler(len(frames), loop.batch_size, loop.seed, ddp.rank, ddp.world_size, start_step)

@@ -15,10 +15,14 @@ else by name. Intrinsics and ``depth_scale`` follow Open3D's vocabulary.
 from __future__ import annotations
 
 import bisect
+import fnmatch
 import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
+
+from contract.geometry import Intrinsics
+from trainer.data.frames import Frame, check_pair, parse_frame_ranges, read_depth_png, read_rgb
 
 COLOUR_FOLDERS = ("color", "rgb", "image")
 DEPTH_FOLDER = "depth"
@@ -126,3 +130,55 @@ def find_pairs(root: Path, tolerance: float = PAIR_TOLERANCE) -> tuple[list[Pair
             used.add(match)
             pairs.append(PairFiles(stem, colour_files[stem], depth_files[match]))
     return pairs, skipped
+
+
+def select_frames(names: list[str], spec: str) -> list[int]:
+    """Indices of ``names`` (time order) matching comma-separated names, globs (``test*``) or index ranges."""
+    chosen: set[int] = set()
+    for item in (part.strip() for part in spec.split(",")):
+        if not item:
+            continue
+        if item.replace("-", "").isdigit():
+            indices = parse_frame_ranges(item)
+            if indices[-1] >= len(names):
+                raise ValueError(f"frames {item}: the recording has frames 0-{len(names) - 1}")
+            chosen.update(indices)
+        else:
+            hits = [i for i, name in enumerate(names) if fnmatch.fnmatch(name, item)]
+            if not hits:
+                raise ValueError(f"frames {item!r} match no frame name (names look like {names[0]!r})")
+            chosen.update(hits)
+    return sorted(chosen)
+
+
+class FoldersReader:
+    """The frames of a ``color/`` + ``depth/`` recording, optionally a selection of them.
+
+    ``camera`` fills in or overrides what ``intrinsics.json`` says; depth is in
+    millimetres unless one of them gives ``depth_scale``.
+    """
+
+    def __init__(self, root: Path, frames: str | None = None, camera: CameraFile | None = None):
+        self.root = Path(root)
+        self.name, self.licence = self.root.name, ""
+        pairs, _ = find_pairs(self.root)
+        if not pairs:
+            raise ValueError(f"{self.root}: no colour image has a depth image")
+        own = self.root / INTRINSICS_FILE
+        self.camera = (read_intrinsics_json(own) if own.is_file() else CameraFile()).merged(camera or CameraFile())
+        missing = [key for key in ("fx", "fy", "cx", "cy") if getattr(self.camera, key) is None]
+        if missing:
+            raise ValueError(f"{self.root}: no {INTRINSICS_FILE} and no camera given ({', '.join(missing)} missing)")
+        chosen = select_frames([p.name for p in pairs], frames) if frames else range(len(pairs))
+        self.pairs = [pairs[i] for i in chosen]
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def __getitem__(self, index: int) -> Frame:
+        pair, k = self.pairs[index], self.camera
+        rgb = read_rgb(pair.rgb)
+        depth = read_depth_png(pair.depth, k.depth_scale or 1000.0)
+        check_pair(rgb, depth, str(pair.rgb))
+        intrinsics = Intrinsics(k.fx, k.fy, k.cx, k.cy, rgb.shape[1], rgb.shape[0])
+        return Frame(rgb, depth, intrinsics, f"{self.name}/{pair.name}")

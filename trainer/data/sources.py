@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from trainer.config import DataSource
+from trainer.data.folders import FoldersReader
 from trainer.data.frames import Frame, FrameReader
 from trainer.data.manifest import ManifestReader
 from trainer.data.nyu import NyuReader
@@ -32,6 +33,8 @@ def open_source(source: DataSource) -> FrameReader:
         reader = TumReader(source.root)
     elif source.format == "nyu":
         reader = NyuReader(source.root, source.split, source.splits_file)
+    elif source.format == "folders":
+        reader = FoldersReader(source.root, source.frames, source.camera)
     else:
         reader = ManifestReader(source.root)
     if source.licence:

@@ -9,10 +9,9 @@ end. ``--holdout`` names the held-out frames instead: names, globs or index rang
 
 from __future__ import annotations
 
-import fnmatch
 from dataclasses import dataclass
 
-from trainer.data.frames import parse_frame_ranges
+from trainer.data.folders import select_frames
 from trainer.fit.recording import RecordedPair
 
 TRAIN_SHARE, GAP_SHARE = 0.75, 0.05
@@ -47,26 +46,6 @@ class Split:
         )
 
 
-def _selected(pairs: list[RecordedPair], spec: str) -> list[int]:
-    """Indices matching a comma-separated list of names, globs (``test*``) or index ranges (``160-199``)."""
-    chosen: set[int] = set()
-    for item in (part.strip() for part in spec.split(",")):
-        if not item:
-            continue
-        if item.replace("-", "").isdigit():
-            indices = parse_frame_ranges(item)
-            bad = [i for i in indices if i >= len(pairs)]
-            if bad:
-                raise ValueError(f"--holdout {item}: the recording has frames 0-{len(pairs) - 1}")
-            chosen.update(indices)
-        else:
-            hits = [i for i, p in enumerate(pairs) if fnmatch.fnmatch(p.name, item)]
-            if not hits:
-                raise ValueError(f"--holdout {item!r} matches no frame name (names look like {pairs[0].name!r})")
-            chosen.update(hits)
-    return sorted(chosen)
-
-
 def split_recording(pairs: list[RecordedPair], holdout: str | None = None, gap_frames: int | None = None) -> Split:
     """The default time-order split, or the one ``holdout`` names; raise ValueError if too small."""
     n = len(pairs)
@@ -74,7 +53,10 @@ def split_recording(pairs: list[RecordedPair], holdout: str | None = None, gap_f
         raise ValueError(f"{n} usable pairs; fit needs at least {MIN_PAIRS} (record a little longer)")
     gap = round(GAP_SHARE * n) if gap_frames is None else gap_frames
     if holdout:
-        held = _selected(pairs, holdout)
+        try:
+            held = select_frames([p.name for p in pairs], holdout)
+        except ValueError as e:
+            raise ValueError(f"--holdout: {e}") from None
         near = {j for i in held for j in range(i - gap, i + gap + 1) if 0 <= j < n} - set(held)
         rest = [i for i in range(n) if i not in near and i not in set(held)]
         gap_indices = sorted(near)
