@@ -6,7 +6,8 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     PIP_NO_CACHE_DIR=1 \
     RGB2CLOUD_HOST=0.0.0.0 \
     RGB2CLOUD_PORT=8000 \
-    RGB2CLOUD_REGISTRY=weights
+    RGB2CLOUD_REGISTRY=weights \
+    RGB2CLOUD_MODEL=rgb2cloud-7scenes
 
 WORKDIR /srv/rgb2cloud
 RUN groupadd --system --gid 10001 rgb2cloud \

@@ -32,8 +32,9 @@ test: lint
 	$(PY) -m pytest
 
 # The service on 127.0.0.1:8000 with the bundled default model (weights/); RGB2CLOUD_* overrides.
+# The bundled registry holds more than one model: the kitchen model is the default unless told otherwise.
 serve: $(SERVE_INSTALLED)
-	$(SERVE_VENV)/bin/python -m app
+	$(if $(RGB2CLOUD_REGISTRY)$(RGB2CLOUD_MODEL),,RGB2CLOUD_MODEL=rgb2cloud-7scenes) $(SERVE_VENV)/bin/python -m app
 
 openapi: $(INSTALLED)
 	$(PY) -m app.openapi

@@ -7,7 +7,8 @@ import sys
 
 import uvicorn
 
-from app.loading import ModelLoadError, load_model
+from app.catalog import ModelCatalog
+from app.loading import ModelLoadError
 from app.main import create_app
 from app.settings import Settings
 
@@ -15,15 +16,16 @@ log = logging.getLogger("rgb2cloud")
 
 
 def main() -> None:
-    """Load and verify the model first, so a bad model is one log line and exit status 1."""
+    """Load and verify the default model first, so a bad one is one log line and exit status 1."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     settings = Settings()
+    catalog = ModelCatalog(settings)
     try:
-        model = load_model(settings)
+        catalog.load_default()
     except ModelLoadError as e:
         log.critical("cannot start: %s", e)
         sys.exit(1)
-    uvicorn.run(create_app(settings, model), host=settings.host, port=settings.port, log_level="info")
+    uvicorn.run(create_app(settings, catalog), host=settings.host, port=settings.port, log_level="info")
 
 
 if __name__ == "__main__":

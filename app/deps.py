@@ -1,6 +1,6 @@
 """What route handlers need, declared once as FastAPI dependencies.
 
-``main.create_app`` puts the settings, the loaded model, the inference pool and the
+``main.create_app`` puts the settings, the model catalog, the inference pool and the
 metrics on ``app.state``; handlers ask for them by type (``SettingsDep``, ...), so
 no handler reaches into the application's state itself, and tests can override any
 of them with ``app.dependency_overrides``.
@@ -10,29 +10,44 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, Request
+from fastapi import Depends, HTTPException, Query, Request
+from starlette.concurrency import run_in_threadpool
 
+from app.catalog import ModelCatalog
 from app.loading import LoadedModel
 from app.observability import ServiceMetrics
 from app.pool import InferencePool
 from app.settings import Settings
+
+MODEL_REFERENCE = r"^[A-Za-z0-9][A-Za-z0-9._-]*(:[0-9A-Za-z.+-]+)?$"
 
 
 def get_settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def get_model_if_loaded(request: Request) -> LoadedModel | None:
-    """The model being served, or None while startup is still loading it."""
-    return request.app.state.model
+def get_catalog(request: Request) -> ModelCatalog:
+    return request.app.state.catalog
 
 
-def get_model(request: Request) -> LoadedModel:
-    """The model being served; 503 (retry shortly) until startup has loaded and warmed it."""
-    model = request.app.state.model
-    if model is None:
+async def get_model(
+    request: Request,
+    model: Annotated[
+        str | None,
+        Query(
+            description="NAME (its newest version) or NAME:VERSION from /v1/models; default: the service's default",
+            max_length=200,
+            pattern=MODEL_REFERENCE,
+        ),
+    ] = None,
+) -> LoadedModel:
+    """The model the request names, loaded on first use; 503 (retry shortly) until the default is loaded."""
+    catalog: ModelCatalog = request.app.state.catalog
+    if model is not None:
+        return await run_in_threadpool(catalog.get, model)  # loading takes seconds: never on the event loop
+    if catalog.default is None:
         raise HTTPException(503, "the model is not loaded yet", headers={"Retry-After": "1"})
-    return model
+    return catalog.default
 
 
 def get_pool(request: Request) -> InferencePool:
@@ -44,7 +59,7 @@ def get_metrics(request: Request) -> ServiceMetrics:
 
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
+CatalogDep = Annotated[ModelCatalog, Depends(get_catalog)]
 ModelDep = Annotated[LoadedModel, Depends(get_model)]
-MaybeModelDep = Annotated[LoadedModel | None, Depends(get_model_if_loaded)]
 PoolDep = Annotated[InferencePool, Depends(get_pool)]
 MetricsDep = Annotated[ServiceMetrics, Depends(get_metrics)]

@@ -10,11 +10,13 @@ from __future__ import annotations
 import io
 import struct
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 from isal import isal_zlib
 from PIL import Image, ImageOps, UnidentifiedImageError
 
+from app.camera import exif_focal
 from contract.colormap import colorize
 
 READABLE = "JPEG, PNG, WebP, TIFF, BMP, GIF"
@@ -48,8 +50,16 @@ def _to_rgb(im: Image.Image) -> np.ndarray:
     return np.asarray(im.convert("RGB"), dtype=np.uint8)
 
 
-def decode_image(data: bytes, max_pixels: int) -> np.ndarray:
-    """Upload bytes -> HxWx3 uint8 RGB after EXIF orientation, or ``BadImage``."""
+@dataclass(frozen=True)
+class Photo:
+    """The upright photo as HxWx3 uint8 RGB, and the focal length (fx, fy) in its pixels that its EXIF gives."""
+
+    rgb: np.ndarray
+    exif_focal: tuple[float, float] | None
+
+
+def decode_image(data: bytes, max_pixels: int) -> Photo:
+    """Upload bytes -> the upright RGB photo and its EXIF focal length, or ``BadImage``."""
     if not data:
         raise BadImage(400, "the 'image' field is empty")
     try:
@@ -70,8 +80,8 @@ def decode_image(data: bytes, max_pixels: int) -> np.ndarray:
     try:
         im.seek(0)  # animated formats: the first frame
         im.load()
-        im = ImageOps.exif_transpose(im)
-        return _to_rgb(im)
+        focal = exif_focal(im)
+        return Photo(_to_rgb(ImageOps.exif_transpose(im)), focal)
     except Exception as e:  # truncated or corrupt pixel data
         raise BadImage(400, f"the image data is truncated or corrupt: {e}") from None
 

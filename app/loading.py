@@ -1,4 +1,4 @@
-"""Find, verify and warm the model to serve. Every failure names the file and the reason."""
+"""Verify and warm one published version for serving. Every failure names the file and the reason."""
 
 from __future__ import annotations
 
@@ -25,9 +25,16 @@ class LoadedModel:
     path: Path
     generator: ExportedGenerator
     warmup_seconds: float
+    #: The size of the weights file the runtime holds: what /metrics counts per loaded model.
+    weights_bytes: int
     #: One generator call at a time: it already uses every inference thread, while the
     #: other pool workers decode and encode around it.
     lock: threading.Lock = field(default_factory=threading.Lock)
+
+    @property
+    def label(self) -> str:
+        """``NAME:VERSION``, as requests name it and /metrics labels it."""
+        return f"{self.card.name}:{self.card.version}"
 
     def predict_depth(self, rgb: np.ndarray) -> np.ndarray:
         """Metres, HxW float32, for an HxWx3 uint8 image (padded to the grid and cropped back)."""
@@ -42,24 +49,6 @@ def available_models(registry: Path) -> dict[str, list[str]]:
         return {}
     names = sorted(p.name for p in Path(registry).iterdir() if p.is_dir() and not p.name.startswith("."))
     return {name: versions for name in names if (versions := list_versions(registry, name))}
-
-
-def resolve(settings: Settings) -> Path:
-    """The version folder to serve: the named (or only) model, the named (or newest) version."""
-    models = available_models(settings.registry)
-    if not models:
-        raise ModelLoadError(f"{settings.registry}: no published model (expected <name>/<version>/card.json)")
-    name = settings.model_name
-    if name is None:
-        if len(models) > 1:
-            raise ModelLoadError(f"{settings.registry}: several models {sorted(models)}; set RGB2CLOUD_MODEL_NAME")
-        name = next(iter(models))
-    if name not in models:
-        raise ModelLoadError(f"{settings.registry / name}: no such model (available: {sorted(models)})")
-    version = settings.model_version or models[name][-1]
-    if version not in models[name]:
-        raise ModelLoadError(f"{settings.registry / name / version}: no such version (available: {models[name]})")
-    return settings.registry / name / version
 
 
 def file_weight_shapes(path: Path, backend: str) -> list[tuple[int, ...]]:
@@ -86,9 +75,8 @@ def check_weights(card: ModelCard, path: Path, backend: str) -> None:
         )
 
 
-def load_model(settings: Settings) -> LoadedModel:
-    """Resolve, verify (sha256 + config vs weights), build the runtime and warm it up."""
-    folder = resolve(settings)
+def load_version(folder: Path, settings: Settings) -> LoadedModel:
+    """Verify (sha256 + config vs weights), build the runtime and warm it up."""
     try:
         card = load_card(folder)
         verify_files(folder, card)
@@ -108,7 +96,7 @@ def load_model(settings: Settings) -> LoadedModel:
             runner = TorchScriptGenerator(path, card.input_multiple, settings.threads)
     except Exception as e:  # the runtime's own parse errors
         raise ModelLoadError(f"{path}: the {settings.backend} runtime cannot load it: {e}") from e
-    model = LoadedModel(card, folder, runner, 0.0)
+    model = LoadedModel(card, folder, runner, 0.0, path.stat().st_size)
     start = time.perf_counter()
     warm = model.predict_depth(np.zeros((card.camera.height, card.camera.width, 3), dtype=np.uint8))
     if warm.shape != (card.camera.height, card.camera.width):

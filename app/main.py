@@ -12,9 +12,9 @@ from fastapi import FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
 
+from app.catalog import ModelCatalog, RefusedModel, UnknownModel
 from app.imaging import BadImage
 from app.limits import BodySizeLimit
-from app.loading import LoadedModel, load_model
 from app.observability import MetricsMiddleware, ServiceMetrics
 from app.pool import InferencePool, Overloaded
 from app.routes import router
@@ -28,29 +28,31 @@ EXPOSED_HEADERS = [
     "X-Depth-Range-M",
     "X-Point-Count",
     "X-Intrinsics",
+    "X-Intrinsics-Source",
     "X-Inference-Ms",
     "Server-Timing",
     "Retry-After",
 ]
 
 
-def create_app(settings: Settings | None = None, model: LoadedModel | None = None) -> FastAPI:
-    """The app; it loads (or takes) the model, verified and warmed, before serving."""
+def create_app(settings: Settings | None = None, catalog: ModelCatalog | None = None) -> FastAPI:
+    """The app; it loads the default model (unless ``catalog`` has), verified and warmed, before serving."""
     settings = settings or Settings()
     metrics = ServiceMetrics()
+    catalog = catalog or ModelCatalog(settings)
+    catalog.on_change = metrics.models_changed
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        if app.state.model is None:
-            app.state.model = load_model(settings)  # a ModelLoadError stops startup
-        card = app.state.model.card
+        default = catalog.default or catalog.load_default()  # a ModelLoadError stops startup
+        metrics.models_changed(catalog)
         log.info(
-            "serving %s %s from %s (%s, warm-up %.2fs)",
-            card.name,
-            card.version,
-            app.state.model.path,
+            "serving %s from %s (%s, warm-up %.2fs; other models load on first use, at most %d at once)",
+            default.label,
+            default.path,
             settings.backend,
-            app.state.model.warmup_seconds,
+            default.warmup_seconds,
+            settings.max_loaded,
         )
         yield
         app.state.pool.shutdown()
@@ -63,12 +65,20 @@ def create_app(settings: Settings | None = None, model: LoadedModel | None = Non
     )
     app.state.settings = settings
     app.state.metrics = metrics
-    app.state.model = model
+    app.state.catalog = catalog
     app.state.pool = InferencePool(settings.workers, settings.max_queue, metrics.pool_changed)
 
     @app.exception_handler(BadImage)
     async def bad_image(_: Request, error: BadImage) -> JSONResponse:
         return JSONResponse({"detail": error.message}, error.status)
+
+    @app.exception_handler(UnknownModel)
+    async def unknown_model(_: Request, error: UnknownModel) -> JSONResponse:
+        return JSONResponse({"detail": error.message, "available": error.available}, 404)
+
+    @app.exception_handler(RefusedModel)
+    async def refused_model(_: Request, error: RefusedModel) -> JSONResponse:
+        return JSONResponse({"detail": error.message}, 409)
 
     @app.exception_handler(Overloaded)
     async def overloaded(_: Request, __: Overloaded) -> JSONResponse:

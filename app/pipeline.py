@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 
 import numpy as np
 from PIL import Image
 
+from app.camera import CameraQuery, PhotoCamera, generator_size, photo_camera
 from app.imaging import decode_image, encode_colormap_png, encode_depth_png
 from app.loading import LoadedModel
 from app.ply import encode_ply
@@ -45,35 +45,53 @@ class Stopwatch:
         self._last = now
 
 
-def infer(model: LoadedModel, rgb: np.ndarray, max_pixels: int) -> np.ndarray:
-    """Depth in metres at the input's size.
+def infer(model: LoadedModel, rgb: np.ndarray, camera: Intrinsics, max_pixels: int) -> np.ndarray:
+    """Depth in metres at the photo's size, the photo resampled to the model's focal length first.
 
-    Images above ``max_pixels`` are shrunk for the generator (it was trained near
-    640x480; bigger inputs cost time without adding context) and the depth is
-    resized back, so the output always has the input's size.
+    The resampled photo is at most ``max_pixels`` (beyond it, it is shrunk further: the cost of a
+    very wide view is bounded, at some cost in accuracy); the depth is resized back to the photo.
     """
     h, w = rgb.shape[:2]
-    small = rgb
-    if h * w > max_pixels:
-        s = math.sqrt(max_pixels / (h * w))
-        small = np.asarray(Image.fromarray(rgb).resize((max(1, round(w * s)), max(1, round(h * s))), Image.BILINEAR))
-    depth = model.predict_depth(small)
-    if small is not rgb:
-        depth = np.asarray(Image.fromarray(depth, mode="F").resize((w, h), Image.BILINEAR), dtype=np.float32)
-    return depth
+    size = generator_size(camera, model.card.camera, max_pixels)
+    if size == (w, h):
+        return model.predict_depth(rgb)
+    depth = model.predict_depth(np.asarray(Image.fromarray(rgb).resize(size, Image.BILINEAR)))
+    return np.asarray(Image.fromarray(depth, mode="F").resize((w, h), Image.BILINEAR), dtype=np.float32)
 
 
-def model_headers(model: LoadedModel) -> dict[str, str]:
-    return {"X-Model-Name": model.card.name, "X-Model-Version": model.card.version}
+def model_headers(model: LoadedModel, camera: PhotoCamera) -> dict[str, str]:
+    return {
+        "X-Model-Name": model.card.name,
+        "X-Model-Version": model.card.version,
+        "X-Intrinsics": camera.header(),
+        "X-Intrinsics-Source": camera.source,
+    }
 
 
-def depth_png(model: LoadedModel, data: bytes, max_pixels: int, infer_pixels: int, colormap: bool) -> Result:
-    watch = Stopwatch()
-    rgb = decode_image(data, max_pixels)
+def _photo_and_depth(
+    model: LoadedModel, data: bytes, limits: Limits, query: CameraQuery, watch: Stopwatch
+) -> tuple[np.ndarray, np.ndarray, PhotoCamera]:
+    photo = decode_image(data, limits.max_pixels)
     watch.lap("decode")
-    depth = infer(model, rgb, infer_pixels)
+    height, width = photo.rgb.shape[:2]
+    camera = photo_camera(model.card.camera, width, height, query, photo.exif_focal)
+    depth = infer(model, photo.rgb, camera.intrinsics, limits.inference_max_pixels)
     watch.lap("inference")
-    headers = model_headers(model)
+    return photo.rgb, depth, camera
+
+
+@dataclass(frozen=True)
+class Limits:
+    """The settings that bound one request's work."""
+
+    max_pixels: int
+    inference_max_pixels: int
+
+
+def depth_png(model: LoadedModel, data: bytes, limits: Limits, query: CameraQuery, colormap: bool) -> Result:
+    watch = Stopwatch()
+    _, depth, camera = _photo_and_depth(model, data, limits, query, watch)
+    headers = model_headers(model, camera)
     if colormap:
         lo, hi = (float(v) for v in np.percentile(depth, [2, 98]))
         headers |= {"X-Depth-Units": "colormap", "X-Depth-Range-M": f"{lo:.3f},{hi:.3f}"}
@@ -87,44 +105,21 @@ def depth_png(model: LoadedModel, data: bytes, max_pixels: int, infer_pixels: in
 
 @dataclass(frozen=True)
 class CloudOptions:
-    fx: float | None
-    fy: float | None
-    cx: float | None
-    cy: float | None
     stride: int
     min_depth: float
     max_depth: float
 
 
-def camera_for(model: LoadedModel, width: int, height: int, options: CloudOptions) -> Intrinsics:
-    """The card's training camera scaled to this image; any given fx/fy/cx/cy wins."""
-    c = model.card.camera
-    base = Intrinsics(c.fx, c.fy, c.cx, c.cy, c.width, c.height).resized(width, height)
-    return Intrinsics(
-        options.fx if options.fx is not None else base.fx,
-        options.fy if options.fy is not None else base.fy,
-        options.cx if options.cx is not None else base.cx,
-        options.cy if options.cy is not None else base.cy,
-        width,
-        height,
-    )
-
-
 def point_cloud_ply(
-    model: LoadedModel, data: bytes, max_pixels: int, infer_pixels: int, options: CloudOptions
+    model: LoadedModel, data: bytes, limits: Limits, query: CameraQuery, options: CloudOptions
 ) -> Result:
+    """Formula (5) with the photo's own camera: the one its depth was inferred with."""
     watch = Stopwatch()
-    rgb = decode_image(data, max_pixels)
-    watch.lap("decode")
-    depth = infer(model, rgb, infer_pixels)
-    watch.lap("inference")
-    k = camera_for(model, rgb.shape[1], rgb.shape[0], options)
+    rgb, depth, camera = _photo_and_depth(model, data, limits, query, watch)
+    k = camera.intrinsics
     points = point_cloud(depth, rgb, k, stride=options.stride, min_depth=options.min_depth, max_depth=options.max_depth)
     watch.lap("backproject")
     body = encode_ply(points)
     watch.lap("encode")
-    headers = model_headers(model) | {
-        "X-Point-Count": str(len(points)),
-        "X-Intrinsics": f"{k.fx:.4f},{k.fy:.4f},{k.cx:.4f},{k.cy:.4f}",
-    }
+    headers = model_headers(model, camera) | {"X-Point-Count": str(len(points))}
     return Result(body, headers, watch.stages)

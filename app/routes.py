@@ -4,14 +4,16 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, File, Query, UploadFile
+from fastapi import APIRouter, Depends, File, Query, UploadFile
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+from starlette.concurrency import run_in_threadpool
 
-from app.deps import MaybeModelDep, MetricsDep, ModelDep, PoolDep, SettingsDep
-from app.loading import LoadedModel, available_models
+from app.camera import CameraQuery
+from app.deps import CatalogDep, MetricsDep, ModelDep, PoolDep, SettingsDep
+from app.loading import LoadedModel
 from app.observability import ServiceMetrics
-from app.pipeline import CloudOptions, Result, depth_png, point_cloud_ply
+from app.pipeline import CloudOptions, Limits, Result, depth_png, point_cloud_ply
 from app.pool import InferencePool
 
 router = APIRouter()
@@ -21,16 +23,48 @@ PNG_RESPONSE = {200: {"content": {"image/png": {}}, "description": "depth PNG"}}
 PLY_RESPONSE = {200: {"content": {"application/octet-stream": {}}, "description": "binary little-endian PLY"}}
 ERRORS = {
     400: {"description": "empty, truncated or corrupt image"},
+    404: {"description": "no such model or version; the body lists what the registry holds"},
+    409: {"description": "the model version is in the registry but fails verification; the body says why"},
     413: {"description": "body or pixel count over the limit"},
     415: {"description": "not an image"},
+    422: {"description": "a query parameter out of range"},
     503: {"description": "busy (retry after Retry-After seconds) or not ready"},
 }
+#: Focal lengths and principal points far outside any camera are refused, so every answer stays finite.
+FOCAL_RANGE = {"ge": 0.01, "le": 1e7}
+CENTRE_RANGE = {"ge": -1e7, "le": 1e7}
+
+
+def camera_query(
+    fx: Annotated[
+        float | None,
+        Query(**FOCAL_RANGE, allow_inf_nan=False, description="focal length x in the photo's pixels (fy alone: same)"),
+    ] = None,
+    fy: Annotated[
+        float | None,
+        Query(**FOCAL_RANGE, allow_inf_nan=False, description="focal length y in the photo's pixels (fx alone: same)"),
+    ] = None,
+    cx: Annotated[float | None, Query(**CENTRE_RANGE, allow_inf_nan=False, description="principal point x")] = None,
+    cy: Annotated[float | None, Query(**CENTRE_RANGE, allow_inf_nan=False, description="principal point y")] = None,
+) -> CameraQuery:
+    """The photo's camera as the request gives it; the focal length otherwise comes from EXIF or the model."""
+    return CameraQuery(fx, fy, cx, cy)
+
+
+CameraDep = Annotated[CameraQuery, Depends(camera_query)]
+
+
+def limits_of(settings: SettingsDep) -> Limits:
+    return Limits(settings.max_pixels, settings.inference_max_pixels)
+
+
+LimitsDep = Annotated[Limits, Depends(limits_of)]
 
 
 async def _run(pool: InferencePool, metrics: ServiceMetrics, fn, model: LoadedModel, *args) -> Result:
     """Run one request's pipeline in the pool and add the timing headers."""
     result: Result = await pool.run(fn, model, *args)
-    metrics.inference.observe(result.inference_seconds)
+    metrics.inference.labels(model.label).observe(result.inference_seconds)
     result.headers["X-Inference-Ms"] = f"{result.inference_seconds * 1000:.1f}"
     result.headers["Server-Timing"] = result.server_timing()
     return result
@@ -39,7 +73,8 @@ async def _run(pool: InferencePool, metrics: ServiceMetrics, fn, model: LoadedMo
 @router.post("/depth", response_class=Response, responses={**PNG_RESPONSE, **ERRORS})
 async def depth(
     model: ModelDep,
-    settings: SettingsDep,
+    camera: CameraDep,
+    limits: LimitsDep,
     pool: PoolDep,
     metrics: MetricsDep,
     image: Annotated[UploadFile, IMAGE_FIELD],
@@ -47,35 +82,36 @@ async def depth(
         Literal["png16", "colormap"], Query(description="png16: 16-bit millimetres (default); colormap: preview")
     ] = "png16",
 ) -> Response:
-    """Metric depth for the photo: 16-bit PNG in millimetres, 0 = no depth, at the photo's size."""
+    """Metric depth for the photo: 16-bit PNG in millimetres, 0 = no depth, at the photo's size.
+
+    The photo is resampled to the model's focal length first (``X-Intrinsics-Source`` says whose).
+    """
     data = await image.read()
-    limits = settings.max_pixels, settings.inference_max_pixels
-    result = await _run(pool, metrics, depth_png, model, data, *limits, format == "colormap")
+    result = await _run(pool, metrics, depth_png, model, data, limits, camera, format == "colormap")
     return Response(result.body, media_type="image/png", headers=result.headers)
 
 
 @router.post("/pointcloud", response_class=Response, responses={**PLY_RESPONSE, **ERRORS})
 async def pointcloud(
     model: ModelDep,
-    settings: SettingsDep,
+    camera: CameraDep,
+    limits: LimitsDep,
     pool: PoolDep,
     metrics: MetricsDep,
     image: Annotated[UploadFile, IMAGE_FIELD],
-    fx: Annotated[float | None, Query(gt=0, allow_inf_nan=False, description="focal length x, input pixels")] = None,
-    fy: Annotated[float | None, Query(gt=0, allow_inf_nan=False, description="focal length y, input pixels")] = None,
-    cx: Annotated[float | None, Query(allow_inf_nan=False, description="principal point x, input pixels")] = None,
-    cy: Annotated[float | None, Query(allow_inf_nan=False, description="principal point y, input pixels")] = None,
     stride: Annotated[int, Query(ge=1, le=64, description="keep every stride-th row and column")] = 1,
     min_depth: Annotated[float, Query(ge=0, allow_inf_nan=False, description="drop points nearer (m)")] = 0.0,
     max_depth: Annotated[float, Query(gt=0, allow_inf_nan=False, description="drop points farther (m)")] = 100.0,
 ) -> Response:
-    """A coloured point cloud (formula (5): x right, y down, z forward, metres) as binary PLY."""
+    """A coloured point cloud (formula (5): x right, y down, z forward, metres) as binary PLY.
+
+    Back-projected with the camera the depth was inferred for (``X-Intrinsics``).
+    """
     if min_depth > max_depth:
         return JSONResponse({"detail": f"min_depth ({min_depth}) is greater than max_depth ({max_depth})"}, 422)
-    options = CloudOptions(fx, fy, cx, cy, stride, min_depth, max_depth)
+    options = CloudOptions(stride, min_depth, max_depth)
     data = await image.read()
-    limits = settings.max_pixels, settings.inference_max_pixels
-    result = await _run(pool, metrics, point_cloud_ply, model, data, *limits, options)
+    result = await _run(pool, metrics, point_cloud_ply, model, data, limits, camera, options)
     return Response(result.body, media_type="application/octet-stream", headers=result.headers)
 
 
@@ -86,20 +122,18 @@ async def healthz() -> dict[str, str]:
 
 
 @router.get("/readyz", responses={503: {"description": "not ready"}})
-async def readyz(model: MaybeModelDep) -> JSONResponse:
-    """200 once the model is loaded, verified and warmed up."""
+async def readyz(catalog: CatalogDep) -> JSONResponse:
+    """200 once the default model is loaded, verified and warmed up; other models never make it unready."""
+    model = catalog.default
     if model is None:
         return JSONResponse({"status": "loading"}, 503)
     return JSONResponse({"status": "ready", "model": model.card.name, "version": model.card.version})
 
 
 @router.get("/v1/models")
-async def models(model: MaybeModelDep, settings: SettingsDep) -> dict:
-    """The loaded model's card (null while loading), and every version in the registry."""
-    return {
-        "loaded": None if model is None else model.card.model_dump(mode="json"),
-        "available": available_models(settings.registry),
-    }
+async def models(catalog: CatalogDep) -> dict:
+    """Every model and version in the registry: loaded or not, refused with the reason, and its card's summary."""
+    return await run_in_threadpool(catalog.describe)
 
 
 @router.get("/metrics", response_class=Response)

@@ -16,8 +16,12 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="RGB2CLOUD_", extra="forbid")
 
     registry: Path = Field(Path("weights"), description="registry folder: <name>/<version>/card.json")
-    model_name: str | None = Field(None, description="model to serve (default: the only one in the registry)")
-    model_version: str | None = Field(None, description="version to serve (default: the newest)")
+    model: str | None = Field(
+        None,
+        description="the default model, NAME (its newest version) or NAME:VERSION, loaded at startup and served "
+        "to requests without model=; unset: the registry's only model",
+    )
+    max_loaded: int = Field(4, ge=1, description="models kept loaded at once, the default among them")
     backend: Literal["onnx", "torchscript"] = "onnx"
     threads: int = Field(
         default_factory=lambda: os.cpu_count() or 1, ge=1, description="threads each generator call uses"
@@ -34,7 +38,10 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(20 * 1024 * 1024, ge=1, description="larger bodies get 413 before buffering")
     max_pixels: int = Field(40_000_000, ge=1, description="decoded width x height limit (pixel bombs)")
     inference_max_pixels: int = Field(
-        640 * 480, ge=1, description="larger images are shrunk for the generator; depth comes back at full size"
+        1280 * 960,
+        ge=1,
+        description="the most pixels the generator sees: a photo resampled to the model's focal length beyond "
+        "this is shrunk further; depth comes back at the photo's size",
     )
     max_queue: int = Field(8, ge=0, description="requests waiting for inference beyond this get 503")
     retry_after_s: int = Field(1, ge=0, description="Retry-After on 503")

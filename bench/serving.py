@@ -1,9 +1,11 @@
-"""Serving benchmark: per-stage times, generator backends, Open3D comparison, concurrency.
+"""Serving benchmark: per-stage times, the default path against every backend, Open3D, concurrency.
 
-    python bench/serving.py --registry weights [--repeats 20] [--markdown docs/benchmarks.md]
+    python bench/serving.py --registry weights --model rgb2cloud-7scenes [--repeats 20] [--markdown docs/benchmarks.md]
 
 Every figure is a median over ``--repeats`` runs on one 640x480 photo, taken in
-one run on one machine, so the ratios between rows are what to read. Open3D
+one run on one machine, so the ratios between rows are what to read. The backends
+table runs every published version of the default model on each backend
+(ONNX Runtime, TorchScript, eager PyTorch), with its ratio to the fastest. Open3D
 is optional (``pip install -e '.[bench]'``, and on Debian ``apt-get install
 libusb-1.0-0``); without it that row is skipped.
 """
@@ -19,6 +21,7 @@ import tempfile
 import time
 import zlib
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from pathlib import Path
 
 import httpx
@@ -26,14 +29,17 @@ import numpy as np
 from isal import isal_zlib
 from PIL import Image
 
+from app.catalog import ModelCatalog
 from app.client import server_timing
 from app.imaging import PNG_COMPRESS_LEVEL, decode_image, depth_png_rows, encode_depth_png
-from app.loading import load_model
+from app.loading import LoadedModel
 from app.ply import encode_ply
 from app.process import running_service
 from app.settings import Settings
+from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, list_versions
 from contract.codec import rgb_to_input
 from contract.geometry import Intrinsics, pad_to_multiple, point_cloud
+from contract.runtime import OnnxGenerator
 from trainer.machine import cpu_description
 
 REPO = Path(__file__).resolve().parents[1]
@@ -84,20 +90,50 @@ def depth_png_encoders(depth: np.ndarray, repeats: int) -> dict[str, tuple[float
     return {label: (median_ms(fn, repeats), len(fn())) for label, fn in candidates.items()}
 
 
+def backend_times(model: LoadedModel, registry: Path, x: np.ndarray, threads: int, repeats: int) -> dict[str, float]:
+    """Generator milliseconds of every version of the model on every backend installed, on input ``x``."""
+    times = {}
+    for version in list_versions(registry, model.card.name):
+        folder = registry / model.card.name / version
+        times |= {f"{version}, {backend}": ms for backend, ms in _version_times(folder, x, threads, repeats).items()}
+    return times
+
+
+def _version_times(folder: Path, x: np.ndarray, threads: int, repeats: int) -> dict[str, float]:
+    session = OnnxGenerator(folder / ONNX_FILE, 1, threads).session
+    name = session.get_inputs()[0].name
+    times = {"ONNX Runtime": median_ms(lambda: session.run(None, {name: x}), repeats)}
+    try:
+        import torch
+
+        from trainer.checkpoint import load_graph
+    except ImportError:  # the serving install: ONNX Runtime only
+        return times
+    torch.set_num_threads(threads)
+    scripted = torch.jit.load(str(folder / TORCHSCRIPT_FILE)).eval()
+    eager, _, _ = load_graph(folder)  # the same weights and inference settings, eagerly
+    xt = torch.from_numpy(x)
+    with torch.inference_mode():
+        times["TorchScript"] = median_ms(lambda: scripted(xt), repeats)
+        times["eager PyTorch"] = median_ms(lambda: eager(xt), repeats)
+    return times
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--registry", type=Path, default=REPO / "weights")
+    parser.add_argument("--model", default="rgb2cloud-7scenes", help="the default model: NAME or NAME:VERSION")
     parser.add_argument("--image", type=Path, default=DEFAULT_IMAGE)
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--threads", type=int, default=os.cpu_count())
     parser.add_argument("--markdown", type=Path, help="also write the tables here")
     args = parser.parse_args()
 
-    settings = Settings(registry=args.registry, threads=args.threads)
-    model = load_model(settings)
+    settings = Settings(registry=args.registry, threads=args.threads, model=args.model)
+    model = ModelCatalog(settings).load_default()
     card = model.card
     data = args.image.read_bytes()
-    rgb = decode_image(data, settings.max_pixels)
+    rgb = decode_image(data, settings.max_pixels).rgb
     h, w = rgb.shape[:2]
     m = card.input_multiple
     x = rgb_to_input(pad_to_multiple(rgb, m))
@@ -120,7 +156,7 @@ def main() -> None:
 
     png_encoders = depth_png_encoders(depth, r)
 
-    with running_service(registry=str(args.registry), threads=str(args.threads)) as service:
+    with running_service(registry=str(args.registry), threads=str(args.threads), model=args.model) as service:
         url = service.url
         client = httpx.Client(timeout=60)
         files = {"image": ("photo.jpg", data)}
@@ -140,6 +176,9 @@ def main() -> None:
             )
             shares[route]["outside the model call"] = statistics.median(row["total"] - row["inference"] for row in rows)
             shares[route]["total"] = stages[f"HTTP total {route}"]
+        for version in list_versions(args.registry, card.name):  # each version through the same service
+            ask = partial(client.post, f"{url}/depth", params={"model": f"{card.name}:{version}"}, files=files)
+            stages[f"HTTP total /depth?model={card.name}:{version}"] = median_ms(ask, r)
         rss_before = rss_mb(service.pid)
         throughput = {}
         per_client = max(2, r // 2)
@@ -160,21 +199,8 @@ def main() -> None:
             throughput[clients] = (len(statuses) / elapsed, errors, len(statuses), alone)
         rss_after = rss_mb(service.pid)
 
-    backends = {"ONNX Runtime": stages["generator (ONNX Runtime)"]}
-    try:
-        import torch
-
-        from trainer.checkpoint import load_graph
-
-        torch.set_num_threads(args.threads)
-        scripted = torch.jit.load(str(model.path / "generator.torchscript.pt")).eval()
-        eager, _, _ = load_graph(model.path)  # the same weights and inference settings, eagerly
-        xt = torch.from_numpy(x)
-        with torch.inference_mode():
-            backends["TorchScript"] = median_ms(lambda: scripted(xt), r)
-            backends["eager PyTorch"] = median_ms(lambda: eager(xt), r)
-    except ImportError:
-        pass
+    backends = backend_times(model, args.registry, x, args.threads, r)
+    default = f"{card.version}, ONNX Runtime"
 
     open3d_row = None
     with tempfile.TemporaryDirectory() as tmp:
@@ -197,7 +223,6 @@ def main() -> None:
         except ImportError:
             pass
 
-    generator = stages["generator (ONNX Runtime)"]
     out = io.StringIO()
     out.write(
         f"Machine: {machine()}\n\nModel: {card.name} {card.version}, {w}x{h} photo "
@@ -218,9 +243,15 @@ def main() -> None:
     out.write(f"\n| depth PNG, {w}x{h}, compression level {PNG_COMPRESS_LEVEL} | median ms | KB |\n|---|---|---|\n")
     for label, (ms, size) in png_encoders.items():
         out.write(f"| {label} | {ms:.1f} | {size / 1000:.0f} |\n")
-    out.write("\n| generator backend | median ms | vs ONNX Runtime |\n|---|---|---|\n")
+    fastest = min(backends.values())
+    out.write(
+        f"\nThe default path (**bold**: {card.name} {card.version} on ONNX Runtime, what `make serve` runs) against "
+        "every version and backend, the generator call alone:\n"
+    )
+    out.write("\n| version, backend | median ms | vs the fastest |\n|---|---|---|\n")
     for backend, ms in backends.items():
-        out.write(f"| {backend} | {ms:.1f} | {ms / generator:.2f}x |\n")
+        label = f"**{backend}**" if backend == default else backend
+        out.write(f"| {label} | {ms:.1f} | {ms / fastest:.2f}x |\n")
     out.write("\n| back-projection + binary PLY to disk | median ms |\n|---|---|\n")
     out.write(f"| rgb2cloud (`point_cloud` + `encode_ply`) | {ours:.1f} |\n")
     if open3d_row is not None:

@@ -128,9 +128,15 @@ def colours(points: np.ndarray) -> np.ndarray:
     return np.stack([points["red"], points["green"], points["blue"]], axis=-1)
 
 
+#: The fewest grid cells per side an input is padded to: the generator's innermost feature map
+#: is one cell per ``multiple`` pixels, and its reflection padding needs at least two.
+MIN_GRID_CELLS = 2
+
+
 def grid_padding(height: int, width: int, multiple: int) -> tuple[int, int]:
-    """Rows and columns to add at the bottom and right to reach a multiple."""
-    return (-height) % multiple, (-width) % multiple
+    """Rows and columns to add at the bottom and right to reach a multiple (and at least the smallest grid)."""
+    smallest = MIN_GRID_CELLS * multiple
+    return max(smallest - height, (-height) % multiple), max(smallest - width, (-width) % multiple)
 
 
 def pad_to_multiple(image: np.ndarray, multiple: int) -> np.ndarray:

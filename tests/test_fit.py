@@ -227,7 +227,7 @@ def test_the_split_is_time_ordered_with_a_gap_or_the_named_holdout(tmp_path):
     assert named.holdout == list(range(30, 40)) and named.gap == [] and named.selection == [27, 28, 29]
     by_glob = split_recording(pairs, holdout="3?", gap_frames=2)
     assert by_glob.holdout == list(range(30, 40)) and by_glob.gap == [28, 29]
-    with pytest.raises(ValueError, match="--holdout: frames .* match no frame name"):
+    with pytest.raises(ValueError, match=r"--holdout: frames .* match no frame name"):
         split_recording(pairs, holdout="test*")
 
 

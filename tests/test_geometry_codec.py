@@ -86,7 +86,10 @@ def test_pad_to_multiple():
     padded = pad_to_multiple(img, 4)
     assert padded.shape == (8, 8, 3)
     np.testing.assert_array_equal(padded[:5, :7], img)
-    assert pad_to_multiple(np.zeros((2, 2, 3)), 16).shape == (16, 16, 3)  # smaller than the pad: edge mode
+    # Smaller than the pad: edge mode, and never under two grid cells a side (the generator's innermost
+    # reflection padding needs two; ONNX Runtime refuses one).
+    assert pad_to_multiple(np.zeros((2, 2, 3)), 16).shape == (32, 32, 3)
+    assert pad_to_multiple(np.zeros((1, 40, 3)), 16).shape == (32, 48, 3)
 
 
 @pytest.mark.parametrize("kind", ["log", "linear"])

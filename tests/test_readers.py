@@ -169,7 +169,7 @@ def test_folders_source_selects_frames_and_takes_a_camera(tmp_path):
     np.testing.assert_allclose(reader[1].depth, 5.0)  # millimetres unless a depth_scale says otherwise
     assert reader[0].intrinsics.fx == 5.0 and reader[0].intrinsics.width == 8
     assert len(open_source(DataSource(format="folders", root=tmp_path, frames="1*", camera=camera))) == 2
-    with pytest.raises(ValueError, match="no intrinsics.json and no camera given"):
+    with pytest.raises(ValueError, match=r"no intrinsics\.json and no camera given"):
         open_source(DataSource(format="folders", root=tmp_path))
     (tmp_path / "intrinsics.json").write_text('{"fx": 6, "fy": 6, "cx": 4, "cy": 3, "depth_scale": 5000}')
     own = open_source(DataSource(format="folders", root=tmp_path, frames="0"))

@@ -20,8 +20,8 @@ from conftest import REPO, TUM_FRAME
 from PIL import Image
 from plyfile import PlyData
 
+from app.catalog import ModelCatalog
 from app.client import server_timing
-from app.loading import load_model
 from app.process import running_service
 from app.settings import Settings
 
@@ -40,7 +40,12 @@ def service(registry):
 
 @pytest.fixture(scope="module")
 def model(registry):
-    return load_model(Settings(registry=registry, threads=1))
+    return ModelCatalog(Settings(registry=registry, threads=1)).load_default()
+
+
+def own_focal(model) -> dict[str, float]:
+    """Query parameters saying the photo has the model's focal length: the generator sees it as it is."""
+    return {"fx": model.card.camera.fx, "fy": model.card.camera.fy}
 
 
 def png_bytes(array: np.ndarray, **save) -> bytes:
@@ -71,7 +76,7 @@ def assert_healthy(url: str) -> None:
 
 def test_depth_png_is_16_bit_millimetres_at_the_input_size(service, model):
     rgb = tum_rgb(333, 251)  # not a multiple of the generator's grid
-    r = post(service, "/depth", png_bytes(rgb))
+    r = post(service, "/depth", png_bytes(rgb), own_focal(model))
     assert r.status_code == 200 and r.headers["content-type"] == "image/png"
     assert 0 < float(r.headers["x-inference-ms"]) < 60_000
     assert (r.headers["x-model-name"], r.headers["x-model-version"], r.headers["x-depth-units"]) == (
@@ -121,7 +126,7 @@ def test_colormap_preview(service):
 
 def test_pointcloud_follows_formula_5_point_by_point(service, model):
     rgb = tum_rgb(161, 121)
-    fx, fy, cx, cy = 150.0, 152.5, 80.25, 60.75
+    fx, fy, cx, cy = model.card.camera.fx, model.card.camera.fy, 80.25, 60.75
     params = {"fx": fx, "fy": fy, "cx": cx, "cy": cy, "min_depth": 0.5, "max_depth": 3.0}
     r = post(service, "/pointcloud", png_bytes(rgb), params)
     assert r.status_code == 200
@@ -143,6 +148,7 @@ def test_pointcloud_follows_formula_5_point_by_point(service, model):
 
 def test_pointcloud_defaults_to_the_card_camera_scaled_and_strides(service, model):
     r = post(service, "/pointcloud", png_bytes(tum_rgb(320, 240)), {"stride": 4})
+    assert r.headers["x-intrinsics-source"] == "model"
     fx, fy, cx, cy = (float(x) for x in r.headers["x-intrinsics"].split(","))
     camera = model.card.camera
     assert (fx, fy) == pytest.approx((camera.fx / 2, camera.fy / 2))
@@ -217,6 +223,9 @@ def test_chunked_upload_over_the_limit_is_refused(service):
         {"fy": "nan"},
         {"fx": "inf"},
         {"cx": "nan"},
+        {"cx": -1e12},
+        {"fy": 1e-300},
+        {"model": "no spaces allowed"},
         {"stride": 0},
         {"min_depth": 3, "max_depth": 1},
     ],
@@ -267,21 +276,28 @@ def test_cors_only_for_configured_origins(service):
 
 def test_models_and_metrics(service):
     models = httpx.get(f"{service}/v1/models", timeout=5).json()
-    assert models["loaded"]["name"] == "tiny" and models["available"] == {"tiny": ["0.1.0"]}
-    assert models["loaded"]["training"]["data"][0]["licence"]
+    assert models["default"] == {"name": "tiny", "version": "0.1.0"}
+    (entry,) = models["models"]
+    assert entry["name"] == "tiny" and [v["version"] for v in entry["versions"]] == ["0.1.0"]
+    version = entry["versions"][0]
+    assert version["loaded"] and version["refused"] is None and version["card"]["data"][0]["licence"]
     post(service, "/depth", png_bytes(tum_rgb(32, 32)))
     text = httpx.get(f"{service}/metrics", timeout=5).text
-    assert 'rgb2cloud_requests_total{method="POST",route="/depth",status="200"}' in text
-    assert "rgb2cloud_request_seconds_bucket" in text and "rgb2cloud_inference_seconds_count" in text
+    assert 'rgb2cloud_requests_total{method="POST",model="tiny:0.1.0",route="/depth",status="200"}' in text
+    assert 'rgb2cloud_inference_seconds_count{model="tiny:0.1.0"}' in text
+    assert "rgb2cloud_request_seconds_bucket" in text and "rgb2cloud_models_loaded 1.0" in text
+    assert 'rgb2cloud_model_weights_bytes{model="tiny:0.1.0"}' in text and "process_resident_memory_bytes" in text
     assert "rgb2cloud_inference_in_flight" in text and "rgb2cloud_inference_queued" in text
 
 
-def test_overload_gets_503_with_retry_after_at_once(registry):
-    big = png_bytes(np.tile(tum_rgb(), (3, 3, 1)))  # 1920x1440: slow enough to overlap
+def test_overload_gets_503_with_retry_after_at_once(registry, model):
+    big = png_bytes(np.tile(tum_rgb(), (3, 3, 1)))  # 1920x1440 at the model's focal length: slow enough to overlap
 
     async def burst(url: str) -> list[httpx.Response]:
         async with httpx.AsyncClient(timeout=60) as client:
-            calls = [client.post(f"{url}/depth", files={"image": ("a.png", big)}) for _ in range(12)]
+            calls = [
+                client.post(f"{url}/depth", files={"image": ("a.png", big)}, params=own_focal(model)) for _ in range(12)
+            ]
             return await asyncio.gather(*calls)
 
     with running_service(

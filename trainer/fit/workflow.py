@@ -265,8 +265,9 @@ def _checkpoint_step(path: Path) -> int:
 def _serve_lines(registry: Path, name: str, version: str) -> list[str]:
     return [
         "",
-        "Serve it, then ask it for depth and point clouds:",
-        f"  RGB2CLOUD_REGISTRY={registry} RGB2CLOUD_MODEL_NAME={name} RGB2CLOUD_MODEL_VERSION={version} make serve",
-        "  curl -sS -F image=@photo.jpg http://127.0.0.1:8000/depth -o depth.png",
-        '  curl -sS -F image=@photo.jpg "http://127.0.0.1:8000/pointcloud?stride=2" -o cloud.ply',
+        f"A service running on {registry} serves it now, without a restart:",
+        f'  curl -sS -F image=@photo.jpg "http://127.0.0.1:8000/depth?model={name}:{version}" -o depth.png',
+        f'  curl -sS -F image=@photo.jpg "http://127.0.0.1:8000/pointcloud?model={name}:{version}" -o cloud.ply',
+        "Or start one with it as the default model:",
+        f"  RGB2CLOUD_REGISTRY={registry} RGB2CLOUD_MODEL={name}:{version} make serve",
     ]

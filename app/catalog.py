@@ -1,0 +1,225 @@
+"""Every model in the registry, served by name: loaded on first use, a bounded number kept, newest followed.
+
+A request names a model as ``NAME`` (that model's newest servable version) or
+``NAME:VERSION``; without one it gets the default (``RGB2CLOUD_MODEL``), which is
+loaded at startup, never evicted, and what ``/readyz`` waits for. Others load on
+first use, verified exactly as the default is, and at most ``max_loaded`` stay
+loaded: the least recently used goes first.
+
+The registry is read again on every request that names a model, so a version
+published while the service runs (``contract.card.publish`` renames a finished
+folder into place) is served without a restart. A version that fails verification
+is refused with its reason and never replaces the one serving: ``NAME`` keeps
+following the newest version that loads. A refused version is tried again only when
+its card changes on disk.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import OrderedDict
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from app.loading import LoadedModel, ModelLoadError, available_models, load_version
+from app.settings import Settings
+from contract.card import CARD_FILE, CardError, ModelCard, load_card
+
+log = logging.getLogger("rgb2cloud")
+Key = tuple[str, str]
+
+
+class UnknownModel(Exception):
+    """No such model or version in the registry (HTTP 404); ``available`` says what there is."""
+
+    def __init__(self, message: str, available: dict[str, list[str]]):
+        super().__init__(message)
+        self.message, self.available = message, available
+
+
+class RefusedModel(Exception):
+    """The version is in the registry but cannot be served (HTTP 409); the message says why."""
+
+    def __init__(self, message: str):
+        super().__init__(message)
+        self.message = message
+
+
+def parse_reference(reference: str) -> tuple[str, str | None]:
+    """``NAME`` or ``NAME:VERSION`` -> (name, version or None)."""
+    name, _, version = reference.strip().partition(":")
+    return name, version or None
+
+
+class ModelCatalog:
+    """The loaded models, least recently used first, and the versions refused with their reasons."""
+
+    def __init__(self, settings: Settings):
+        self.settings = settings
+        self.default: LoadedModel | None = None
+        self._loaded: OrderedDict[Key, LoadedModel] = OrderedDict()
+        self._refused: dict[Key, tuple[str, float | None]] = {}
+        self._loading: dict[Key, threading.Lock] = {}
+        self._lock = threading.Lock()
+        #: Called after a model loads or is unloaded (the app points it at its metrics).
+        self.on_change: Callable[[ModelCatalog], None] = lambda _: None
+
+    @property
+    def registry(self) -> Path:
+        return self.settings.registry
+
+    def default_key(self) -> Key:
+        """The default model's (name, version): ``RGB2CLOUD_MODEL``, else the registry's only model, newest."""
+        models = available_models(self.registry)
+        if not models:
+            raise ModelLoadError(f"{self.registry}: no published model (expected <name>/<version>/card.json)")
+        if self.settings.model:
+            name, version = parse_reference(self.settings.model)
+        elif len(models) == 1:
+            name, version = next(iter(models)), None
+        else:
+            raise ModelLoadError(
+                f"{self.registry}: several models {sorted(models)}; set RGB2CLOUD_MODEL=NAME or NAME:VERSION"
+            )
+        try:
+            return self._resolve(name, version, models)
+        except UnknownModel as e:
+            raise ModelLoadError(e.message) from None
+
+    def load_default(self) -> LoadedModel:
+        """Load the default model (startup); a ModelLoadError stops the service."""
+        key = self.default_key()
+        model = load_version(self.registry / key[0] / key[1], self.settings)
+        with self._lock:
+            self.default = model
+            self._loaded[key] = model
+        self.on_change(self)
+        return model
+
+    def get(self, reference: str) -> LoadedModel:
+        """The model ``NAME`` or ``NAME:VERSION`` names, loading it if needed (blocking: call off the event loop)."""
+        name, version = parse_reference(reference)
+        models = available_models(self.registry)
+        key = self._resolve(name, version, models)
+        while True:
+            model = self._cached(key)
+            if model is not None:
+                return model
+            try:
+                return self._load(key)
+            except RefusedModel:
+                if version is not None:
+                    raise
+                key = self._resolve(name, None, models)  # the next newest that may load
+
+    def loaded(self) -> list[LoadedModel]:
+        with self._lock:
+            return list(self._loaded.values())
+
+    def refusal(self, name: str, version: str) -> str | None:
+        with self._lock:
+            refused = self._refused.get((name, version))
+        return refused[0] if refused else None
+
+    def _resolve(self, name: str, version: str | None, models: dict[str, list[str]]) -> Key:
+        if name not in models:
+            raise UnknownModel(f"no model {name!r} in the registry", models)
+        if version is not None:
+            if version not in models[name]:
+                raise UnknownModel(f"model {name!r} has no version {version!r}", models)
+            return name, version
+        servable = [v for v in models[name] if not self._still_refused((name, v))]
+        if not servable:
+            reasons = "; ".join(f"{v}: {self.refusal(name, v)}" for v in models[name])
+            raise RefusedModel(f"no version of {name!r} can be served ({reasons})")
+        return name, servable[-1]
+
+    def _card_stamp(self, key: Key) -> float | None:
+        try:
+            return (self.registry / key[0] / key[1] / CARD_FILE).stat().st_mtime
+        except OSError:
+            return None
+
+    def _still_refused(self, key: Key) -> bool:
+        with self._lock:
+            refused = self._refused.get(key)
+        return refused is not None and refused[1] == self._card_stamp(key)
+
+    def _cached(self, key: Key) -> LoadedModel | None:
+        with self._lock:
+            model = self._loaded.get(key)
+            if model is not None:
+                self._loaded.move_to_end(key)
+        return model
+
+    def _load(self, key: Key) -> LoadedModel:
+        with self._lock:
+            loader = self._loading.setdefault(key, threading.Lock())
+        with loader:  # one load per version at a time; the others wait for it and share it
+            model = self._cached(key)
+            if model is not None:
+                return model
+            if self._still_refused(key):
+                raise RefusedModel(f"{key[0]}:{key[1]} cannot be served: {self.refusal(*key)}")
+            stamp = self._card_stamp(key)
+            try:
+                model = load_version(self.registry / key[0] / key[1], self.settings)
+            except ModelLoadError as e:
+                with self._lock:
+                    self._refused[key] = (str(e), stamp)
+                log.error("refused %s:%s: %s", *key, e)
+                raise RefusedModel(f"{key[0]}:{key[1]} cannot be served: {e}") from None
+            with self._lock:
+                self._refused.pop(key, None)
+                self._loaded[key] = model
+                self._evict()
+            log.info("loaded %s (warm-up %.2fs)", model.label, model.warmup_seconds)
+        self.on_change(self)
+        return model
+
+    def _evict(self) -> None:
+        """Drop least recently used models beyond the bound; the default stays (caller holds the lock)."""
+        for key in list(self._loaded):
+            if len(self._loaded) <= self.settings.max_loaded:
+                break
+            if self._loaded[key] is not self.default:
+                log.info("unloaded %s:%s (least recently used)", *key)
+                del self._loaded[key]
+
+    def describe(self) -> dict[str, Any]:
+        """What /v1/models shows: every model and version, loaded or refused, with its card's summary."""
+        loaded = {(m.card.name, m.card.version) for m in self.loaded()}
+        models = []
+        for name, versions in available_models(self.registry).items():
+            entries = []
+            for version in reversed(versions):
+                entry: dict[str, Any] = {"version": version, "loaded": (name, version) in loaded}
+                refused = self.refusal(name, version) if self._still_refused((name, version)) else None
+                try:
+                    entry["card"] = card_summary(load_card(self.registry / name / version))
+                except CardError as e:
+                    refused = refused or str(e)
+                entry["refused"] = refused
+                entries.append(entry)
+            models.append({"name": name, "versions": entries})
+        default = self.default
+        return {
+            "default": None if default is None else {"name": default.card.name, "version": default.card.version},
+            "max_loaded": self.settings.max_loaded,
+            "models": models,
+        }
+
+
+def card_summary(card: ModelCard) -> dict[str, Any]:
+    """The parts of a card a person choosing a model needs: when, what from, how good, which camera."""
+    fit = card.training.fit
+    return {
+        "created": card.created.isoformat(),
+        "camera": card.camera.model_dump(),
+        "inference": card.inference.model_dump(),
+        "data": [{"name": d.name, "licence": d.licence} for d in card.training.data],
+        "fit": None if fit is None else {"data": fit.data, "from": fit.started_from},
+        "metrics": [{"split": m.split, "label": m.label, "delta1": m.delta1, "rel": m.rel} for m in card.metrics],
+    }

@@ -1,0 +1,133 @@
+"""Many models, one service, over real HTTP: chosen per request, loaded on first use, LRU-bounded, hot-published.
+
+The registry here holds versions published with ``contract.card.publish``, the function
+``rgb2cloud export`` and ``fit`` publish with, copied from the tiny trained model.
+"""
+
+from __future__ import annotations
+
+import io
+
+import httpx
+import numpy as np
+import pytest
+from conftest import TUM_FRAME
+from PIL import Image
+
+from app.process import running_service
+from contract.card import CARD_FILE, ONNX_FILE, TORCHSCRIPT_FILE, load_card, publish
+
+PHOTO = (TUM_FRAME / "TUM_color.png").read_bytes()
+
+
+def publish_copy(folder, registry, name: str, version: str):
+    """The version in ``folder`` published again, as ``name version``, into ``registry``."""
+    card = load_card(folder).model_copy(update={"name": name, "version": version})
+    return publish(registry, card, {f: folder / f for f in (ONNX_FILE, TORCHSCRIPT_FILE)})
+
+
+def publish_live(registry, name: str, version: str):
+    """A new version in a registry a service is serving from."""
+    return publish_copy(registry / "kitchen" / "1.0.0", registry, name, version)
+
+
+def depth(url: str, model: str | None = None) -> httpx.Response:
+    params = {"model": model} if model else None
+    return httpx.post(f"{url}/depth", files={"image": ("p.png", PHOTO)}, params=params, timeout=60)
+
+
+def loaded(url: str) -> dict[str, bool]:
+    described = httpx.get(f"{url}/v1/models", timeout=10).json()
+    return {f"{m['name']}:{v['version']}": v["loaded"] for m in described["models"] for v in m["versions"]}
+
+
+@pytest.fixture
+def site_registry(registry, tmp_path):
+    """Three site models: the default (kitchen), lab with two versions, office."""
+    target = tmp_path / "weights"
+    for name, version in [("kitchen", "1.0.0"), ("lab", "0.1.0"), ("lab", "0.2.0"), ("office", "0.1.0")]:
+        publish_copy(registry / "tiny" / "0.1.0", target, name, version)
+    return target
+
+
+def test_models_are_chosen_per_request_and_the_newest_version_is_followed(site_registry):
+    with running_service(registry=str(site_registry), model="kitchen", threads="1", max_loaded="4") as service:
+        default = depth(service.url)
+        assert (default.headers["x-model-name"], default.headers["x-model-version"]) == ("kitchen", "1.0.0")
+        lab = depth(service.url, "lab")
+        assert (lab.headers["x-model-name"], lab.headers["x-model-version"]) == ("lab", "0.2.0")
+        assert depth(service.url, "lab:0.1.0").headers["x-model-version"] == "0.1.0"
+        # The same weights under every name: the same depth, whichever model was asked for.
+        assert np.array_equal(_png(default.content), _png(lab.content))
+
+        missing = depth(service.url, "garage")
+        assert missing.status_code == 404
+        assert "garage" in missing.json()["detail"] and missing.json()["available"]["lab"] == ["0.1.0", "0.2.0"]
+        assert depth(service.url, "lab:9.9.9").status_code == 404
+
+        # Published while the service runs: served at once, and "lab" now means it.
+        publish_live(site_registry, "lab", "0.3.0")
+        assert depth(service.url, "lab").headers["x-model-version"] == "0.3.0"
+        publish_live(site_registry, "garage", "0.1.0")
+        assert depth(service.url, "garage").headers["x-model-name"] == "garage"
+
+        metrics = httpx.get(f"{service.url}/metrics", timeout=5).text
+        assert 'model="lab:0.2.0",route="/depth",status="200"' in metrics
+        assert 'model="kitchen:1.0.0",route="/depth",status="200"' in metrics
+
+
+def _png(data: bytes) -> np.ndarray:
+    with Image.open(io.BytesIO(data)) as im:
+        return np.asarray(im)
+
+
+def test_a_corrupt_version_is_refused_and_never_disturbs_the_ones_serving(site_registry):
+    with running_service(registry=str(site_registry), model="kitchen", threads="1") as service:
+        assert depth(service.url, "lab").headers["x-model-version"] == "0.2.0"
+        broken = publish_live(site_registry, "lab", "0.3.0")
+        onnx_file = broken / ONNX_FILE
+        onnx_file.write_bytes(onnx_file.read_bytes()[:-10])
+
+        refused = depth(service.url, "lab:0.3.0")
+        assert refused.status_code == 409
+        assert "lab:0.3.0" in refused.json()["detail"] and "sha256" in refused.json()["detail"]
+        # "lab" keeps following the newest version that loads; the default is untouched.
+        assert depth(service.url, "lab").headers["x-model-version"] == "0.2.0"
+        assert depth(service.url).headers["x-model-name"] == "kitchen"
+        assert httpx.get(f"{service.url}/readyz", timeout=5).status_code == 200
+        lab = next(m for m in httpx.get(f"{service.url}/v1/models", timeout=5).json()["models"] if m["name"] == "lab")
+        newest = lab["versions"][0]
+        assert newest["version"] == "0.3.0" and not newest["loaded"] and "sha256" in newest["refused"]
+
+        # A card that changes on disk is tried again: a rewritten card is a new attempt (still refused here).
+        (broken / CARD_FILE).write_text((broken / CARD_FILE).read_text())
+        assert depth(service.url, "lab:0.3.0").status_code == 409
+
+
+def test_least_recently_used_models_are_unloaded_beyond_the_bound(site_registry):
+    with running_service(registry=str(site_registry), model="kitchen", threads="1", max_loaded="2") as service:
+        assert loaded(service.url) == {
+            "kitchen:1.0.0": True,
+            "lab:0.2.0": False,
+            "lab:0.1.0": False,
+            "office:0.1.0": False,
+        }
+        depth(service.url, "lab")
+        assert loaded(service.url)["lab:0.2.0"]
+        depth(service.url, "office")  # the bound is 2: lab goes, the default always stays
+        state = loaded(service.url)
+        assert state["kitchen:1.0.0"] and state["office:0.1.0"] and not state["lab:0.2.0"]
+        assert depth(service.url, "lab").status_code == 200  # loads again on demand
+        state = loaded(service.url)
+        assert state["kitchen:1.0.0"] and state["lab:0.2.0"] and not state["office:0.1.0"]
+        metrics = httpx.get(f"{service.url}/metrics", timeout=5).text
+        assert "rgb2cloud_models_loaded 2.0" in metrics
+        assert 'rgb2cloud_model_weights_bytes{model="office:0.1.0"}' not in metrics
+
+
+def test_several_models_need_a_default(site_registry):
+    with (
+        pytest.raises(RuntimeError, match=r"several models .* set RGB2CLOUD_MODEL"),
+        running_service(registry=str(site_registry), threads="1"),
+    ):
+        pass
