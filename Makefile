@@ -6,7 +6,7 @@ INSTALLED := $(VENV)/.installed
 SERVE_VENV := .venv-serve
 SERVE_INSTALLED := $(SERVE_VENV)/.installed
 
-.PHONY: install test lint serve openapi
+.PHONY: install test lint serve openapi system-packages
 
 $(INSTALLED): pyproject.toml
 	python3 -m venv $(VENV)
@@ -28,7 +28,14 @@ lint: $(INSTALLED)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 
-test: lint
+# The tests drive Debian's chromium (the web page) and nginx (the load balancer); installing them needs root.
+SYSTEM_PACKAGES := chromium nginx-light
+system-packages:
+	@command -v chromium >/dev/null && command -v nginx >/dev/null || \
+	    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(SYSTEM_PACKAGES); } || \
+	    { echo "make test needs $(SYSTEM_PACKAGES): apt-get install them as root"; exit 1; }
+
+test: lint system-packages
 	$(PY) -m pytest
 
 # The service on 127.0.0.1:8000 with the bundled default model (weights/); RGB2CLOUD_* overrides.

@@ -1,13 +1,19 @@
 """A client for the service: one image or a folder in, .depth.png / .ply files out.
 
-Retries on 503 (busy or loading), honouring Retry-After, and on dropped
-connections; every other error is reported per file and the rest go on.
+Sends ``concurrency`` requests at once, under one progress bar. Retries on 503
+(busy or loading), honouring Retry-After, and on dropped connections; every other
+error is reported per file and the rest go on. Outputs that already exist are
+skipped, so running the same command again resumes an interrupted batch; each
+output is written under a temporary name and renamed, so no half-written file is
+ever taken for a finished one.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,7 +29,10 @@ class ClientOptions:
     url: str = "http://127.0.0.1:8000"
     timeout_s: float = 60.0
     retries: int = 5
-    cloud_params: dict | None = None  # query options for /pointcloud (stride, fx, ...)
+    concurrency: int = 1
+    overwrite: bool = False
+    params: dict | None = None  # query options for both routes (model, fx, ...)
+    cloud_params: dict | None = None  # query options for /pointcloud only (stride, ...)
 
 
 def find_images(source: Path) -> list[Path]:
@@ -58,27 +67,43 @@ def run(
     options: ClientOptions,
     transport: httpx.BaseTransport | None = None,
 ) -> Iterator[tuple[Path, str]]:
-    """Process every image; yields (image, 'wrote PATH' or 'error: ...') as it goes."""
-    images = find_images(source)
-    with httpx.Client(base_url=options.url, timeout=options.timeout_s, transport=transport) as client:
-        for image in tqdm(images, desc="images", unit="img", disable=len(images) < 2):
-            for kind in kinds:
-                route, suffix = OUTPUTS[kind]
-                target = (out_dir or image.parent) / (image.stem + suffix)
-                try:
-                    params = options.cloud_params if kind == "pointcloud" else None
-                    response = request_with_retries(client, route, image, options, params)
-                except httpx.HTTPError as e:
-                    yield image, f"error: {type(e).__name__}: {e}"
-                    continue
-                if response.status_code != 200:
-                    is_json = response.headers.get("content-type") == "application/json"
-                    detail = response.json().get("detail") if is_json else response.text
-                    yield image, f"error: HTTP {response.status_code}: {detail}"
-                    continue
-                target.parent.mkdir(parents=True, exist_ok=True)
-                target.write_bytes(response.content)
-                yield image, f"wrote {target}"
+    """Process every image; yields (image, 'wrote PATH', 'skipped PATH (exists)' or 'error: ...') as it goes."""
+    jobs = []
+    for image in find_images(source):
+        for kind in kinds:
+            target = (out_dir or image.parent) / (image.stem + OUTPUTS[kind][1])
+            if target.exists() and not options.overwrite:
+                yield image, f"skipped {target} (exists)"
+            else:
+                jobs.append((image, kind, target))
+    limits = httpx.Limits(max_connections=options.concurrency, max_keepalive_connections=options.concurrency)
+    with (
+        httpx.Client(base_url=options.url, timeout=options.timeout_s, transport=transport, limits=limits) as client,
+        ThreadPoolExecutor(options.concurrency) as pool,
+    ):
+        futures = {pool.submit(_one, client, image, kind, target, options): image for image, kind, target in jobs}
+        for future in tqdm(
+            as_completed(futures), total=len(futures), desc="images", unit="file", disable=len(jobs) < 2
+        ):
+            yield futures[future], future.result()
+
+
+def _one(client: httpx.Client, image: Path, kind: str, target: Path, options: ClientOptions) -> str:
+    route = OUTPUTS[kind][0]
+    params = {**(options.params or {}), **((options.cloud_params or {}) if kind == "pointcloud" else {})}
+    try:
+        response = request_with_retries(client, route, image, options, params)
+    except httpx.HTTPError as e:
+        return f"error: {type(e).__name__}: {e}"
+    if response.status_code != 200:
+        is_json = response.headers.get("content-type") == "application/json"
+        detail = response.json().get("detail") if is_json else response.text
+        return f"error: HTTP {response.status_code}: {detail}"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    partial = target.with_name(f".{target.name}.{os.getpid()}.part")
+    partial.write_bytes(response.content)
+    partial.replace(target)
+    return f"wrote {target}"
 
 
 def server_timing(response: httpx.Response) -> dict[str, float]:

@@ -11,13 +11,14 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
+from fastapi.staticfiles import StaticFiles
 
 from app.catalog import ModelCatalog, RefusedModel, UnknownModel
 from app.imaging import BadImage
 from app.limits import BodySizeLimit
 from app.observability import MetricsMiddleware, ServiceMetrics
 from app.pool import InferencePool, Overloaded
-from app.routes import router
+from app.routes import WEB_DIR, router
 from app.settings import Settings
 
 log = logging.getLogger("rgb2cloud")
@@ -89,6 +90,7 @@ def create_app(settings: Settings | None = None, catalog: ModelCatalog | None = 
         )
 
     app.include_router(router)
+    app.mount("/web", StaticFiles(directory=WEB_DIR), name="web")
     # The last added is the outermost: CORS wraps everything, so browsers can read even a 413.
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
     app.add_middleware(MetricsMiddleware, metrics=metrics)

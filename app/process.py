@@ -37,42 +37,62 @@ class Service:
     pid: int
 
 
-@contextmanager
-def running_service(**env: str):
-    """Yield a started service (URL and PID); the settings come in as RGB2CLOUD_* variables."""
-    port = free_port()
-    environment = {
-        **os.environ,
-        "RGB2CLOUD_PORT": str(port),
-        "RGB2CLOUD_HOST": "127.0.0.1",
-        **{f"RGB2CLOUD_{k.upper()}": v for k, v in env.items()},
-    }
-    process = subprocess.Popen(
-        [sys.executable, "-m", "app"],
-        cwd=REPO,
-        env=environment,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    url = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 60
+class ServiceProcess:
+    """One ``python -m app`` child on a loopback port: started, waited for, signalled, stopped."""
+
+    def __init__(self, port: int | None = None, **env: str):
+        self.port = port or free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        environment = {
+            **os.environ,
+            "RGB2CLOUD_PORT": str(self.port),
+            "RGB2CLOUD_HOST": "127.0.0.1",
+            **{f"RGB2CLOUD_{k.upper()}": v for k, v in env.items()},
+        }
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "app"],
+            cwd=REPO,
+            env=environment,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
+    def wait_ready(self, timeout_s: float = 60) -> ServiceProcess:
+        """Block until ``/readyz`` says ready; a RuntimeError with the log if it exits or takes too long."""
+        deadline = time.monotonic() + timeout_s
         while True:
-            if process.poll() is not None:
-                raise RuntimeError(f"service exited with {process.returncode}:\n{process.stdout.read()}")
+            if self.process.poll() is not None:
+                raise RuntimeError(f"service exited with {self.process.returncode}:\n{self.process.stdout.read()}")
             try:
-                if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
-                    break
+                if httpx.get(f"{self.url}/readyz", timeout=1).status_code == 200:
+                    return self
             except httpx.TransportError:
                 pass
             if time.monotonic() > deadline:
-                raise RuntimeError("service did not become ready in 60 s")
+                raise RuntimeError(f"service did not become ready in {timeout_s:.0f} s")
             time.sleep(0.2)
-        yield Service(url, process.pid)
-    finally:
-        process.terminate()
+
+    def stop(self, timeout_s: float = 30) -> int:
+        """SIGTERM (uvicorn finishes what it has in flight, then exits), SIGKILL after ``timeout_s``."""
+        self.process.terminate()
         try:
-            process.wait(timeout=10)
+            return self.process.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
-            process.kill()
+            self.process.kill()
+            return self.process.wait()
+
+
+@contextmanager
+def running_service(**env: str):
+    """Yield a started service (URL and PID); the settings come in as RGB2CLOUD_* variables."""
+    service = ServiceProcess(**env)
+    try:
+        service.wait_ready()
+        yield Service(service.url, service.pid)
+    finally:
+        service.stop(timeout_s=10)

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, File, Query, UploadFile
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import FileResponse, JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from starlette.concurrency import run_in_threadpool
 
@@ -17,6 +18,8 @@ from app.pipeline import CloudOptions, Limits, Result, depth_png, point_cloud_pl
 from app.pool import InferencePool
 
 router = APIRouter()
+#: The web page: static files that call the API like any other client.
+WEB_DIR = Path(__file__).with_name("web")
 
 IMAGE_FIELD = File(description="the photo: JPEG, PNG, WebP, TIFF, BMP or GIF (first frame); any size and mode")
 PNG_RESPONSE = {200: {"content": {"image/png": {}}, "description": "depth PNG"}}
@@ -113,6 +116,12 @@ async def pointcloud(
     data = await image.read()
     result = await _run(pool, metrics, point_cloud_ply, model, data, limits, camera, options)
     return Response(result.body, media_type="application/octet-stream", headers=result.headers)
+
+
+@router.get("/", include_in_schema=False)
+async def page() -> FileResponse:
+    """The web page: a photo in, its depth and an interactive point cloud out, through this API."""
+    return FileResponse(WEB_DIR / "index.html")
 
 
 @router.get("/healthz")

@@ -230,6 +230,14 @@ def client(
     timeout: Annotated[float, typer.Option(help="seconds per request")] = 60.0,
     retries: Annotated[int, typer.Option(help="retries on 503 or a dropped connection")] = 5,
     stride: Annotated[int, typer.Option(help="point cloud: keep every stride-th row and column")] = 1,
+    model: Annotated[str | None, typer.Option(help="the model: NAME or NAME:VERSION (default: the service's)")] = None,
+    fx: Annotated[
+        float | None, typer.Option(help="the photos' focal length in pixels (default: EXIF or the model's)")
+    ] = None,
+    concurrency: Annotated[int, typer.Option(min=1, help="requests in flight at once")] = 1,
+    overwrite: Annotated[
+        bool, typer.Option(help="redo outputs that exist (default: skip them, resuming a batch)")
+    ] = False,
 ) -> None:
     """Send images to a running service and save depth PNGs and/or PLY point clouds."""
     from app.client import ClientOptions, run
@@ -237,7 +245,16 @@ def client(
     kinds = [k for k, on in (("depth", depth), ("pointcloud", pointcloud)) if on]
     if not kinds:
         raise typer.BadParameter("nothing to do: enable --depth and/or --pointcloud")
-    options = ClientOptions(url=url, timeout_s=timeout, retries=retries, cloud_params={"stride": stride})
+    params = {key: value for key, value in (("model", model), ("fx", fx)) if value is not None}
+    options = ClientOptions(
+        url=url,
+        timeout_s=timeout,
+        retries=retries,
+        concurrency=concurrency,
+        overwrite=overwrite,
+        params=params,
+        cloud_params={"stride": stride},
+    )
     failed = 0
     for image, outcome in run(source, kinds, out, options):
         failed += outcome.startswith("error")

@@ -56,3 +56,24 @@ def test_client_reports_errors_and_gives_up_after_retries(tmp_path):
     busy = httpx.MockTransport(lambda r: httpx.Response(503, headers={"Retry-After": "0"}, json={"detail": "busy"}))
     outcomes = list(run(photos, ["depth"], None, ClientOptions(retries=2), busy))
     assert outcomes == [(photos / "photo0.jpg", "error: HTTP 503: busy")]
+
+
+def test_a_concurrent_batch_against_a_saturated_service_completes_and_resumes(registry, tmp_path):
+    """Eight photos, six in flight, a service taking one at a time with no queue: 503s, retried, all done.
+
+    Run again, it skips every output that exists; with one deleted, it redoes just that one."""
+    photos = _photos(tmp_path / "photos", count=8)
+    out = tmp_path / "out"
+    with running_service(registry=str(registry), threads="1", workers="1", max_queue="0") as running:
+        args = ["client", str(photos), "-o", str(out), "--url", running.url, "--concurrency", "6"]
+        args += ["--model", "tiny", "--retries", "20"]
+        first = run_cli(*args)
+        assert first.stdout.count("wrote") == 8 and "error" not in first.stdout + first.stderr
+        assert sorted(p.name for p in out.iterdir()) == [f"photo{i}.depth.png" for i in range(8)]  # no partial files
+        again = run_cli(*args)
+        assert again.stdout.count("skipped") == 8 and "wrote" not in again.stdout
+        (out / "photo3.depth.png").unlink()
+        resumed = run_cli(*args)
+        assert resumed.stdout.count("skipped") == 7 and resumed.stdout.count("wrote") == 1
+        metrics = httpx.get(f"{running.url}/metrics", timeout=5).text
+    assert 'route="/depth",status="503"' in metrics  # the batch really met a full service

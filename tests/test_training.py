@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 import subprocess
 import sys
 
@@ -134,3 +135,43 @@ def test_ddp_two_cpu_processes_end_with_identical_weights(tmp_path):
     digests = summary["rank_weight_sha256"]
     assert len(digests) == 2 and digests[0] == digests[1]
     assert summary["hardware"].startswith("CPU") and "2 process(es)" in summary["hardware"]
+
+
+def test_two_nodes_on_loopback_end_with_identical_weights(tmp_path):
+    """Two torchrun "nodes" (one process each, gloo on CPU) that meet through c10d rendezvous, as on two machines."""
+    config = write_config(
+        tmp_path / "c.yaml", tiny_config(tmp_path / "run", train={"steps": 4, "batch_size": 2, "threads": 1})
+    )
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    node = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nnodes",
+        "2",
+        "--nproc_per_node",
+        "1",
+        "--rdzv-backend",
+        "c10d",
+        "--rdzv-endpoint",
+        f"127.0.0.1:{port}",
+        "--rdzv-id",
+        "rgb2cloud-two-nodes",
+        "-m",
+        "cli",
+        "train",
+        str(config),
+        "-s",
+        "train.device=cpu",
+    ]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    nodes = [subprocess.Popen(node, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)]
+    nodes.append(subprocess.Popen(node, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
+    outputs = [p.communicate(timeout=300)[0] for p in nodes]
+    assert [p.returncode for p in nodes] == [0, 0], "\n".join(o[-2000:] for o in outputs)
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    digests = summary["rank_weight_sha256"]
+    assert len(digests) == 2 and digests[0] == digests[1]
+    assert "2 process(es)" in summary["hardware"]
