@@ -11,6 +11,7 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -49,25 +50,27 @@ class ServiceProcess:
             "RGB2CLOUD_HOST": "127.0.0.1",
             **{f"RGB2CLOUD_{k.upper()}": v for k, v in env.items()},
         }
+        # Its log goes to a file, not a pipe: a pipe nobody drains fills up after a few hundred
+        # access-log lines and then blocks the service mid-request.
+        self.log_file = tempfile.NamedTemporaryFile(prefix=f"rgb2cloud-{self.port}-", suffix=".log", delete=False)  # noqa: SIM115 (closed by stop)
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "app"],
-            cwd=REPO,
-            env=environment,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
+            [sys.executable, "-m", "app"], cwd=REPO, env=environment, stdout=self.log_file, stderr=subprocess.STDOUT
         )
 
     @property
     def pid(self) -> int:
         return self.process.pid
 
+    def log(self) -> str:
+        """Everything the service has printed so far."""
+        return Path(self.log_file.name).read_text(errors="replace")
+
     def wait_ready(self, timeout_s: float = 60) -> ServiceProcess:
         """Block until ``/readyz`` says ready; a RuntimeError with the log if it exits or takes too long."""
         deadline = time.monotonic() + timeout_s
         while True:
             if self.process.poll() is not None:
-                raise RuntimeError(f"service exited with {self.process.returncode}:\n{self.process.stdout.read()}")
+                raise RuntimeError(f"service exited with {self.process.returncode}:\n{self.log()}")
             try:
                 if httpx.get(f"{self.url}/readyz", timeout=1).status_code == 200:
                     return self
@@ -85,6 +88,8 @@ class ServiceProcess:
         except subprocess.TimeoutExpired:
             self.process.kill()
             return self.process.wait()
+        finally:
+            self.log_file.close()
 
 
 @contextmanager

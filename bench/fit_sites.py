@@ -7,7 +7,7 @@ Each cell is one ``rgb2cloud fit`` run in its own process, on this machine, with
 site's held-out frames scored once at its end (δ1, REL, point-cloud RMSE), beside the
 starting model zero-shot and the best image-free baseline from the same run's card.
 No site is one its starting model saw: the bundled 0.8.0 saw only 7-Scenes RedKitchen, and
-the ``rooms`` start is, for each site, ``configs/rgb2cloud-rooms-0.1.0.yaml`` trained without
+the ``rooms`` start is, for each site, ``bench/rooms-base.yaml`` trained without
 that site (leave one site out; trained and published once, then reused for every budget).
 Runs and their published versions go to ``runs/bench-fit/``.
 """
@@ -39,7 +39,7 @@ SITES = {
 }  # fmt: skip
 STARTS = ("rooms", "0.8.0", "scratch")
 BUNDLED = REPO / "weights" / "rgb2cloud-7scenes" / "0.8.0"
-ROOMS_CONFIG = REPO / "configs" / "rgb2cloud-rooms-0.1.0.yaml"
+ROOMS_CONFIG = REPO / "bench" / "rooms-base.yaml"
 SEVEN_SCENES = DATA / "7scenes-redkitchen"
 OUT = REPO / "runs" / "bench-fit"
 

@@ -275,7 +275,7 @@ def main() -> None:
     if args.markdown:
         args.markdown.write_text(
             f"# Serving benchmarks\n\nMade by `python bench/serving.py --registry {args.registry} "
-            f"--repeats {r} --markdown {args.markdown}`.\n\n{text}"
+            f"--model {args.model} --repeats {r} --markdown {args.markdown}`.\n\n{text}"
         )
 
 

@@ -42,9 +42,20 @@ def test_every_config_file_loads():
 
 @pytest.mark.parametrize("version_dir", sorted((REPO / "weights").glob("*/*")), ids=lambda p: f"{p.parent.name}")
 def test_each_bundled_model_has_one_config_that_reproduces_it(version_dir):
-    """configs/NAME-VERSION.yaml is the training config in the card, plus the inference settings exported."""
+    """configs/NAME-VERSION.yaml is the training config in the card, plus the inference settings exported.
+
+    A version exported from another with other inference settings (``derived_from``) has its
+    source's config: the same training, with the inference the card records."""
     card = load_card(version_dir)
-    config = load_config(REPO / "configs" / f"{card.name}-{card.version}.yaml").model_dump(mode="json")
+    own = REPO / "configs" / f"{card.name}-{card.version}.yaml"
+    path = (
+        own
+        if own.is_file() or not card.derived_from
+        else REPO / "configs" / f"{card.derived_from.replace(' ', '-')}.yaml"
+    )
+    config = load_config(path).model_dump(mode="json")
+    if path != own:
+        config["inference"] = card.inference.model_dump(mode="json")
     trained = complete_config(card.training.config)
     for tree in (config, trained):
         del tree["train"]["out_dir"]  # where the run writes, not what it trains

@@ -93,7 +93,9 @@ class Load:
 
     def wait(self, timeout_s: float = 300) -> Load:
         self._thread.join(timeout_s)
-        assert not self._thread.is_alive(), "the load did not finish in time"
+        assert not self._thread.is_alive(), (
+            f"the load did not finish in time: {self.done} of {self.count} done, {self.statuses}"
+        )
         return self
 
     def wait_for(self, done: int) -> None:
@@ -159,10 +161,7 @@ def drained(replica: ServiceProcess) -> bool:
     """uvicorn's graceful shutdown ran to its end: it stopped accepting, finished its requests, and exited.
 
     uvicorn re-raises the SIGTERM it handled once it is done, so the exit status is -15 or 0."""
-    return (
-        replica.process.returncode in (0, -signal.SIGTERM)
-        and "Finished server process" in replica.process.stdout.read()
-    )
+    return replica.process.returncode in (0, -signal.SIGTERM) and "Finished server process" in replica.log()
 
 
 def replace(replicas: list[ServiceProcess], index: int, registry: Path, **env: str) -> None:
@@ -250,7 +249,7 @@ def test_a_soak_keeps_every_replica_memory_flat(cluster):
     replicas, balancer = cluster
     small = Image.open(TUM_FRAME / "TUM_color.png").convert("RGB").resize((160, 120))
     photo = _png(small)
-    Load(balancer.url, 300, 6, photo).start().wait()  # warm every replica's allocator
+    Load(balancer.url, 300, 6, photo).start().wait(timeout_s=90)  # warm every replica's allocator
     before = [resident_mb(r.pid) for r in replicas]
     mark = balancer.lines()
     load = Load(balancer.url, 3000, 6, photo).start().wait(timeout_s=600)

@@ -7,6 +7,7 @@ import os
 import socket
 import subprocess
 import sys
+from pathlib import Path
 
 import torch
 from conftest import REPO, run_cli, tiny_config, write_config
@@ -104,74 +105,46 @@ def test_resume_refuses_a_different_network(tmp_path):
     assert result.returncode != 0 and "generator" in (result.stderr + result.stdout)
 
 
-def test_ddp_two_cpu_processes_end_with_identical_weights(tmp_path):
-    config = write_config(
+def torchrun(launch: list[str], config: Path) -> list[str]:
+    """The command line that trains ``config`` on the CPU under torchrun with ``launch`` options."""
+    train = ["-m", "cli", "train", str(config), "-s", "train.device=cpu"]
+    return [sys.executable, "-m", "torch.distributed.run", *launch, *train]
+
+
+def ddp_config(tmp_path: Path) -> Path:
+    return write_config(
         tmp_path / "c.yaml", tiny_config(tmp_path / "run", train={"steps": 4, "batch_size": 2, "threads": 1})
     )
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "torch.distributed.run",
-            "--standalone",
-            "--nproc_per_node",
-            "2",
-            "-m",
-            "cli",
-            "train",
-            str(config),
-            "-s",
-            "train.device=cpu",
-        ],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=300,
-    )
-    assert result.returncode == 0, result.stderr[-3000:]
-    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+
+
+def assert_two_ranks_agree(run: Path) -> None:
+    summary = json.loads((run / "summary.json").read_text())
     digests = summary["rank_weight_sha256"]
     assert len(digests) == 2 and digests[0] == digests[1]
     assert summary["hardware"].startswith("CPU") and "2 process(es)" in summary["hardware"]
 
 
+ONE_THREAD = {**os.environ, "OMP_NUM_THREADS": "1"}
+
+
+def test_ddp_two_cpu_processes_end_with_identical_weights(tmp_path):
+    command = torchrun(["--standalone", "--nproc_per_node", "2"], ddp_config(tmp_path))
+    result = subprocess.run(command, cwd=REPO, capture_output=True, text=True, env=ONE_THREAD, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert_two_ranks_agree(tmp_path / "run")
+
+
 def test_two_nodes_on_loopback_end_with_identical_weights(tmp_path):
     """Two torchrun "nodes" (one process each, gloo on CPU) that meet through c10d rendezvous, as on two machines."""
-    config = write_config(
-        tmp_path / "c.yaml", tiny_config(tmp_path / "run", train={"steps": 4, "batch_size": 2, "threads": 1})
-    )
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    node = [
-        sys.executable,
-        "-m",
-        "torch.distributed.run",
-        "--nnodes",
-        "2",
-        "--nproc_per_node",
-        "1",
-        "--rdzv-backend",
-        "c10d",
-        "--rdzv-endpoint",
-        f"127.0.0.1:{port}",
-        "--rdzv-id",
-        "rgb2cloud-two-nodes",
-        "-m",
-        "cli",
-        "train",
-        str(config),
-        "-s",
-        "train.device=cpu",
+    rendezvous = ["--rdzv-backend", "c10d", "--rdzv-endpoint", f"127.0.0.1:{port}", "--rdzv-id", "two-nodes"]
+    command = torchrun(["--nnodes", "2", "--nproc_per_node", "1", *rendezvous], ddp_config(tmp_path))
+    nodes = [
+        subprocess.Popen(command, cwd=REPO, env=ONE_THREAD, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        for _ in range(2)
     ]
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    nodes = [subprocess.Popen(node, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)]
-    nodes.append(subprocess.Popen(node, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
-    outputs = [p.communicate(timeout=300)[0] for p in nodes]
-    assert [p.returncode for p in nodes] == [0, 0], "\n".join(o[-2000:] for o in outputs)
-    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
-    digests = summary["rank_weight_sha256"]
-    assert len(digests) == 2 and digests[0] == digests[1]
-    assert "2 process(es)" in summary["hardware"]
+    outputs = [node.communicate(timeout=300)[0] for node in nodes]
+    assert [node.returncode for node in nodes] == [0, 0], "\n".join(o[-2000:] for o in outputs)
+    assert_two_ranks_agree(tmp_path / "run")

@@ -172,3 +172,40 @@ def test_the_page_fits_a_phone(browser, service):
     assert canvas["width"] <= 390 and drawn_share(canvas_pixels(page, "9-phone-cloud")) > 0.2
     page.screenshot(path=ARTIFACTS / "9-phone.png", full_page=True)
     assert errors == []
+
+
+def test_touch_drags_orbit_and_a_pinch_zooms(browser, service):
+    """Touch input through the browser's own touch events (CDP), as a phone's screen sends them."""
+    context = browser.new_context(viewport={"width": 390, "height": 844}, has_touch=True, is_mobile=True)
+    page = context.new_page()
+    page.goto(f"{service}/")
+    page.wait_for_function("document.getElementById('model').options.length > 1")
+    page.set_input_files("#photo", PHOTO)
+    wait_done(page)
+    page.locator("#cloud").scroll_into_view_if_needed()
+    cdp = context.new_cdp_session(page)
+    box = page.locator("#cloud").bounding_box()
+    x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+
+    def touch(kind: str, *points: tuple[float, float]) -> None:
+        touches = [{"x": px, "y": py, "id": i} for i, (px, py) in enumerate(points)]
+        cdp.send("Input.dispatchTouchEvent", {"type": kind, "touchPoints": touches})
+
+    first = canvas_pixels(page, "10-touch-start")
+    touch("touchStart", (x, y))
+    for step in range(1, 9):
+        touch("touchMove", (x + 12 * step, y))
+    touch("touchEnd")
+    dragged = canvas_pixels(page, "11-touch-orbited")
+    assert changed_share(first, dragged) > 0.2
+
+    page.click("#reset-view")
+    before = canvas_pixels(page, "12-touch-reset")
+    touch("touchStart", (x - 20, y), (x + 20, y))
+    for step in range(1, 9):
+        touch("touchMove", (x - 20 - 10 * step, y), (x + 20 + 10 * step, y))
+    touch("touchEnd")
+    pinched = canvas_pixels(page, "13-pinched")
+    # Fingers apart bring the eye closer: the points (a fixed size on screen) spread apart and part leave the view.
+    assert changed_share(before, pinched) > 0.2 and drawn_share(pinched) < drawn_share(before) - 0.1
+    context.close()
