@@ -30,6 +30,14 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def resident_mb(pid: int) -> float:
+    """A process's resident memory in MB (Linux ``/proc``): what the soak test and the benchmark watch."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise ValueError(f"/proc/{pid}/status has no VmRSS line")
+
+
 @dataclass(frozen=True)
 class Service:
     """A started service: where to reach it, and its process id (to measure or signal it)."""

@@ -34,7 +34,7 @@ from app.client import server_timing
 from app.imaging import PNG_COMPRESS_LEVEL, decode_image, depth_png_rows, encode_depth_png
 from app.loading import LoadedModel
 from app.ply import encode_ply
-from app.process import running_service
+from app.process import resident_mb, running_service
 from app.settings import Settings
 from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, list_versions
 from contract.codec import rgb_to_input
@@ -61,13 +61,6 @@ def machine() -> str:
     import onnxruntime
 
     return f"{cpu_description()}, Python {platform.python_version()}, ONNX Runtime {onnxruntime.__version__}"
-
-
-def rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
 
 
 def depth_png_encoders(depth: np.ndarray, repeats: int) -> dict[str, tuple[float, int]]:
@@ -179,7 +172,7 @@ def main() -> None:
         for version in list_versions(args.registry, card.name):  # each version through the same service
             ask = partial(client.post, f"{url}/depth", params={"model": f"{card.name}:{version}"}, files=files)
             stages[f"HTTP total /depth?model={card.name}:{version}"] = median_ms(ask, r)
-        rss_before = rss_mb(service.pid)
+        rss_before = resident_mb(service.pid)
         throughput = {}
         per_client = max(2, r // 2)
 
@@ -197,7 +190,7 @@ def main() -> None:
             elapsed = time.perf_counter() - start
             errors = sum(s != 200 for s in statuses)
             throughput[clients] = (len(statuses) / elapsed, errors, len(statuses), alone)
-        rss_after = rss_mb(service.pid)
+        rss_after = resident_mb(service.pid)
 
     backends = backend_times(model, args.registry, x, args.threads, r)
     default = f"{card.version}, ONNX Runtime"

@@ -21,6 +21,7 @@ from app.process import running_service
 from contract.card import Camera, load_card
 from contract.geometry import Intrinsics
 from trainer.data.frames import read_depth_png
+from trainer.metrics import MetricAccumulator
 
 BUNDLED = load_card(REPO / "weights" / "rgb2cloud-7scenes" / "0.8.1")
 KITCHEN = Camera(fx=530.0, fy=530.0, cx=314.5, cy=239.0, width=640, height=480)
@@ -48,19 +49,13 @@ def enlarged(frame: int, factor: float) -> tuple[Image.Image, np.ndarray]:
     return photo, depth
 
 
-def delta1(predicted_mm: np.ndarray, truth_m: np.ndarray) -> float:
-    valid = (truth_m >= 0.1) & (truth_m <= 10.0) & (predicted_mm > 0)
-    ratio = predicted_mm[valid] / 1000.0 / truth_m[valid]
-    return float(np.mean(np.maximum(ratio, 1 / ratio) < 1.25))
-
-
 def served_delta1(url: str, factor: float, how: str) -> float:
     """Mean δ1 over FRAMES enlarged by ``factor``, the focal length given by ``how``.
 
     ``query`` or ``exif``: the enlarged photo with its focal length; ``none``: without it;
     ``crop``: the frame's centre 1/factor as it is (what a resampled enlarged photo shows the generator).
     """
-    scores = []
+    scores = MetricAccumulator()  # the paper's metrics, as `rgb2cloud evaluate` computes them
     fx = BUNDLED.camera.fx * factor
     for frame in FRAMES:
         photo, truth = enlarged(frame, factor)
@@ -80,8 +75,10 @@ def served_delta1(url: str, factor: float, how: str) -> float:
         assert r.status_code == 200, r.text
         assert r.headers["x-intrinsics-source"] == {"none": "model", "crop": "query"}.get(how, how)
         with Image.open(io.BytesIO(r.content)) as im:
-            scores.append(delta1(np.asarray(im, dtype=np.float64), truth))
-    return float(np.mean(scores))
+            depth = np.asarray(im, dtype=np.float64) / 1000.0
+        camera = Intrinsics(*(float(v) for v in r.headers["x-intrinsics"].split(",")), *depth.shape[::-1])
+        scores.add(depth, truth, camera)
+    return scores.result()["delta1"]
 
 
 def focal_plane_exif(fx: float, size: tuple[int, int], orientation: int = 1) -> Image.Exif:

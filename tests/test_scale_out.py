@@ -26,7 +26,7 @@ import pytest
 from conftest import REPO, TUM_FRAME, run_cli
 from PIL import Image
 
-from app.process import ServiceProcess, free_port
+from app.process import ServiceProcess, free_port, resident_mb
 from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, load_card, publish
 
 NGINX = shutil.which("nginx") or "/usr/sbin/nginx"
@@ -236,13 +236,6 @@ def test_beyond_capacity_clients_get_503_at_once_and_the_client_retries_complete
     args = ["--url", balancer.url, "--concurrency", "30", "--retries", "30", "--fx", str(own_focal["fx"])]
     result = run_cli("client", str(photos), "-o", str(tmp_path / "out"), *args)
     assert result.stdout.count("wrote") == 30, result.stdout + result.stderr
-
-
-def resident_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    raise AssertionError("no VmRSS")
 
 
 def test_a_soak_keeps_every_replica_memory_flat(cluster):
