@@ -104,12 +104,3 @@ def _one(client: httpx.Client, image: Path, kind: str, target: Path, options: Cl
     partial.write_bytes(response.content)
     partial.replace(target)
     return f"wrote {target}"
-
-
-def server_timing(response: httpx.Response) -> dict[str, float]:
-    """The service's ``Server-Timing`` header as {stage: ms}, in the order the stages ran."""
-    stages = {}
-    for entry in response.headers["server-timing"].split(","):
-        name, duration = entry.strip().split(";dur=")
-        stages[name] = float(duration)
-    return stages

@@ -11,10 +11,14 @@ import pytest
 import yaml
 from PIL import Image
 
+from contract.geometry import Intrinsics
+
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data"
 SEVEN_SCENES = DATA / "7scenes-redkitchen"
 TUM_FRAME = DATA / "tum-fr3-office"
+#: The Kinect calibration the paper uses (TUM fr3 defaults), at 640x480.
+KINECT = Intrinsics(fx=535.4, fy=539.2, cx=320.1, cy=247.6, width=640, height=480)
 
 
 def tiny_config(out_dir: Path, **sections) -> dict:

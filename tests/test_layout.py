@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import ast
 import json
+import re
 import subprocess
 import sys
+import tomllib
+from importlib.metadata import PackageNotFoundError, packages_distributions, requires
 from pathlib import Path
 
 from conftest import REPO
 
-PACKAGES = ("contract", "app", "trainer", "lab", "cli")
+PACKAGES = ("contract", "app", "trainer", "lab", "cli", "harness")
 #: Who may import whom. The contract is the base; the service and the trainer stand on it apart;
 #: the CLI assembles both; the research tooling stands on everything (its CLI shares the product's
 #: options) and nothing stands on it.
@@ -20,7 +23,10 @@ ALLOWED = {
     "trainer": {"contract"},
     "cli": {"contract", "app", "trainer"},
     "lab": {"contract", "trainer", "cli"},
+    "harness": {"contract", "app"},
 }
+#: What the serving image holds (the Dockerfile copies these and nothing else of ours).
+SERVING = ("contract", "app")
 
 
 def _imports(path: Path) -> set[str]:
@@ -68,8 +74,48 @@ print(json.dumps(sorted(name for name in sys.modules)))
 
 def test_the_serving_image_copies_the_contract_and_the_service_only():
     copied = [line.split()[1] for line in (REPO / "Dockerfile").read_text().splitlines() if line.startswith("COPY ")]
-    assert {"contract", "app"} <= set(copied)
-    assert not {"trainer", "lab", "cli", "tests", "configs", "docs"} & set(copied)
+    assert set(SERVING) <= set(copied)
+    assert not {"trainer", "lab", "cli", "harness", "tests", "bench", "configs", "docs"} & set(copied)
+
+
+def _name(requirement: str) -> str:
+    return re.split(r"[<>=!~;\[ (]", requirement, maxsplit=1)[0].lower().replace("_", "-")
+
+
+def _serving_distributions() -> set[str]:
+    """The serving install: pyproject's base dependencies and what they require in turn (no extras)."""
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    pending = [_name(spec) for spec in project["dependencies"]]
+    found: set[str] = set()
+    while pending:
+        name = pending.pop()
+        if name in found:
+            continue
+        found.add(name)
+        try:
+            required = requires(name) or []
+        except PackageNotFoundError:  # required only on other Pythons or platforms
+            continue
+        for requirement in required:
+            if "extra ==" not in requirement:
+                pending.append(_name(requirement))
+    return found
+
+
+def test_the_serving_packages_import_only_the_serving_install():
+    """Everything contract/ and app/ import is the standard library, themselves, or a declared serving
+    dependency: no test or benchmark harness, no test tool, nothing the torch-free image lacks."""
+    declared = _serving_distributions()
+    owners = packages_distributions()
+    optional = {"torch"}  # app/torchscript.py: the optional backend, imported only when chosen
+    checked = 0
+    for package in SERVING:
+        for path in sorted((REPO / package).rglob("*.py")):
+            for name in _imports(path) - set(SERVING) - set(sys.stdlib_module_names) - optional - {"__future__"}:
+                distributions = {d.lower().replace("_", "-") for d in owners.get(name, [name])}
+                assert distributions & declared, f"{path.relative_to(REPO)} imports {name}, not in the serving install"
+                checked += 1
+    assert checked > 10  # the check saw the service's real imports
 
 
 def test_product_files_stay_small():
@@ -77,3 +123,16 @@ def test_product_files_stay_small():
         for path in sorted((REPO / package).rglob("*.py")):
             lines = len(path.read_text().splitlines())
             assert lines <= 400, f"{path.relative_to(REPO)} has {lines} lines"
+
+
+def test_no_function_outside_the_tests_runs_over_80_lines():
+    """A function a reader cannot see whole is split into ones that each do one thing."""
+    long = []
+    for folder in (*PACKAGES, "bench"):
+        for path in sorted((REPO / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                    lines = node.end_lineno - node.lineno + 1
+                    if lines > 80:
+                        long.append(f"{path.relative_to(REPO)}:{node.lineno} {node.name} ({lines} lines)")
+    assert not long, long

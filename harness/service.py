@@ -1,4 +1,4 @@
-"""The service as a child process (``python -m app`` under uvicorn) on a free loopback port.
+"""The service as a child process (``python -m app`` under uvicorn) on a free loopback port, and what is read off it.
 
 For whatever needs a real server to talk to over HTTP: the test suite, the serving
 benchmark, a local replica. It waits for ``/readyz``, so the caller starts on a
@@ -109,3 +109,12 @@ def running_service(**env: str):
         yield Service(service.url, service.pid)
     finally:
         service.stop(timeout_s=10)
+
+
+def server_timing(response: httpx.Response) -> dict[str, float]:
+    """The service's ``Server-Timing`` header as {stage: ms}, in the order the stages ran."""
+    stages = {}
+    for entry in response.headers["server-timing"].split(","):
+        name, duration = entry.strip().split(";dur=")
+        stages[name] = float(duration)
+    return stages
