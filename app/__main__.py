@@ -6,6 +6,7 @@ import logging
 import sys
 
 import uvicorn
+from pydantic import ValidationError
 
 from app.catalog import ModelCatalog
 from app.loading import ModelLoadError
@@ -16,9 +17,18 @@ log = logging.getLogger("rgb2cloud")
 
 
 def main() -> None:
-    """Load and verify the default model first, so a bad one is one log line and exit status 1."""
+    """Read the settings and load and verify the default model first: a bad setting or model is one log
+    line and exit status 1."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    settings = Settings()
+    try:
+        settings = Settings()
+    except ValidationError as e:
+        problems = "; ".join(
+            f"RGB2CLOUD_{'_'.join(map(str, error['loc'])).upper()}={error.get('input')!r}: {error['msg']}"
+            for error in e.errors()
+        )
+        log.critical("cannot start: %s", problems)
+        sys.exit(1)
     catalog = ModelCatalog(settings)
     try:
         catalog.load_default()

@@ -220,6 +220,6 @@ def card_summary(card: ModelCard) -> dict[str, Any]:
         "camera": card.camera.model_dump(),
         "inference": card.inference.model_dump(),
         "data": [{"name": d.name, "licence": d.licence} for d in card.training.data],
-        "fit": None if fit is None else {"data": fit.data, "from": fit.started_from},
+        "fit": None if fit is None else {"data": fit.data, "start_from": fit.start_from},
         "metrics": [{"split": m.split, "label": m.label, "delta1": m.delta1, "rel": m.rel} for m in card.metrics],
     }

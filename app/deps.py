@@ -13,9 +13,11 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Query, Request
 from starlette.concurrency import run_in_threadpool
 
+from app.camera import CameraQuery
 from app.catalog import ModelCatalog
 from app.loading import LoadedModel
 from app.observability import ServiceMetrics
+from app.pipeline import Limits
 from app.pool import InferencePool
 from app.settings import Settings
 
@@ -30,8 +32,12 @@ def get_catalog(request: Request) -> ModelCatalog:
     return request.app.state.catalog
 
 
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+CatalogDep = Annotated[ModelCatalog, Depends(get_catalog)]
+
+
 async def get_model(
-    request: Request,
+    catalog: CatalogDep,
     model: Annotated[
         str | None,
         Query(
@@ -42,12 +48,37 @@ async def get_model(
     ] = None,
 ) -> LoadedModel:
     """The model the request names, loaded on first use; 503 (retry shortly) until the default is loaded."""
-    catalog: ModelCatalog = request.app.state.catalog
     if model is not None:
         return await run_in_threadpool(catalog.get, model)  # loading takes seconds: never on the event loop
     if catalog.default is None:
         raise HTTPException(503, "the model is not loaded yet", headers={"Retry-After": "1"})
     return catalog.default
+
+
+#: Focal lengths and principal points far outside any camera are refused, so every answer stays finite.
+FOCAL_RANGE = {"ge": 0.01, "le": 1e7}
+CENTRE_RANGE = {"ge": -1e7, "le": 1e7}
+
+
+def camera_query(
+    fx: Annotated[
+        float | None,
+        Query(**FOCAL_RANGE, allow_inf_nan=False, description="focal length x in the photo's pixels (fy alone: same)"),
+    ] = None,
+    fy: Annotated[
+        float | None,
+        Query(**FOCAL_RANGE, allow_inf_nan=False, description="focal length y in the photo's pixels (fx alone: same)"),
+    ] = None,
+    cx: Annotated[float | None, Query(**CENTRE_RANGE, allow_inf_nan=False, description="principal point x")] = None,
+    cy: Annotated[float | None, Query(**CENTRE_RANGE, allow_inf_nan=False, description="principal point y")] = None,
+) -> CameraQuery:
+    """The photo's camera as the request gives it; the focal length otherwise comes from EXIF or the model."""
+    return CameraQuery(fx, fy, cx, cy)
+
+
+def get_limits(settings: SettingsDep) -> Limits:
+    """The size limits a request's image is held to, from the settings."""
+    return Limits(settings.max_pixels, settings.inference_max_pixels)
 
 
 def get_pool(request: Request) -> InferencePool:
@@ -58,8 +89,8 @@ def get_metrics(request: Request) -> ServiceMetrics:
     return request.app.state.metrics
 
 
-SettingsDep = Annotated[Settings, Depends(get_settings)]
-CatalogDep = Annotated[ModelCatalog, Depends(get_catalog)]
 ModelDep = Annotated[LoadedModel, Depends(get_model)]
 PoolDep = Annotated[InferencePool, Depends(get_pool)]
+CameraDep = Annotated[CameraQuery, Depends(camera_query)]
+LimitsDep = Annotated[Limits, Depends(get_limits)]
 MetricsDep = Annotated[ServiceMetrics, Depends(get_metrics)]

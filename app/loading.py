@@ -11,7 +11,17 @@ from pathlib import Path
 import numpy as np
 
 from app.settings import Settings
-from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, CardError, ModelCard, list_versions, load_card, verify_files
+from contract.card import (
+    CARD_FILE,
+    ONNX_FILE,
+    TORCHSCRIPT_FILE,
+    CardError,
+    ModelCard,
+    list_versions,
+    load_card,
+    verify_files,
+)
+from contract.codec import INPUT_ENCODING
 from contract.runtime import ExportedGenerator, OnnxGenerator
 
 
@@ -75,13 +85,37 @@ def check_weights(card: ModelCard, path: Path, backend: str) -> None:
         )
 
 
+def check_contract(card: ModelCard, folder: Path) -> None:
+    """The card's input and output must be what this service feeds and reads, or every answer would be wrong.
+
+    The service feeds ``contract.codec.INPUT_ENCODING``, padded to the card's ``input_multiple``,
+    and reads one channel decoded by the card's ``depth_encoding``.
+    """
+    path = folder / CARD_FILE
+    if card.input_encoding != INPUT_ENCODING:
+        raise ModelLoadError(
+            f"{path}: input_encoding {card.input_encoding!r}; this service feeds {INPUT_ENCODING!r} only"
+        )
+    if card.input_multiple != card.generator.input_multiple:
+        raise ModelLoadError(
+            f"{path}: input_multiple {card.input_multiple}, but its generator needs multiples of "
+            f"{card.generator.input_multiple}"
+        )
+    if (card.generator.input_nc, card.generator.output_nc) != (3, 1):
+        raise ModelLoadError(
+            f"{path}: a generator of {card.generator.input_nc} input and {card.generator.output_nc} output "
+            "channels; this service feeds RGB and reads one depth channel"
+        )
+
+
 def load_version(folder: Path, settings: Settings) -> LoadedModel:
-    """Verify (sha256 + config vs weights), build the runtime and warm it up."""
+    """Verify (sha256, the card's input and output, config vs weights), build the runtime and warm it up."""
     try:
         card = load_card(folder)
         verify_files(folder, card)
     except CardError as e:
         raise ModelLoadError(str(e)) from e
+    check_contract(card, folder)
     file_name = ONNX_FILE if settings.backend == "onnx" else TORCHSCRIPT_FILE
     if file_name not in card.files:
         raise ModelLoadError(f"{folder / file_name}: the card lists no such file for backend {settings.backend!r}")

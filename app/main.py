@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 from contextlib import asynccontextmanager
+from importlib.metadata import version
 
 from fastapi import FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
@@ -60,7 +61,7 @@ def create_app(settings: Settings | None = None, catalog: ModelCatalog | None = 
 
     app = FastAPI(
         title="rgb2cloud",
-        version="0.1.0",
+        version=version("rgb2cloud"),
         summary="Metric depth and coloured point clouds from one RGB photo.",
         lifespan=lifespan,
     )

@@ -5,16 +5,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Depends, File, Query, UploadFile
+from fastapi import APIRouter, File, Query, UploadFile
 from fastapi.responses import FileResponse, JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from starlette.concurrency import run_in_threadpool
 
-from app.camera import CameraQuery
-from app.deps import CatalogDep, MetricsDep, ModelDep, PoolDep, SettingsDep
+from app.deps import CameraDep, CatalogDep, LimitsDep, MetricsDep, ModelDep, PoolDep
 from app.loading import LoadedModel
 from app.observability import ServiceMetrics
-from app.pipeline import CloudOptions, Limits, Result, depth_png, point_cloud_ply
+from app.pipeline import CloudOptions, Result, depth_png, point_cloud_ply
 from app.pool import InferencePool
 
 router = APIRouter()
@@ -33,35 +32,6 @@ ERRORS = {
     422: {"description": "a query parameter out of range"},
     503: {"description": "busy (retry after Retry-After seconds) or not ready"},
 }
-#: Focal lengths and principal points far outside any camera are refused, so every answer stays finite.
-FOCAL_RANGE = {"ge": 0.01, "le": 1e7}
-CENTRE_RANGE = {"ge": -1e7, "le": 1e7}
-
-
-def camera_query(
-    fx: Annotated[
-        float | None,
-        Query(**FOCAL_RANGE, allow_inf_nan=False, description="focal length x in the photo's pixels (fy alone: same)"),
-    ] = None,
-    fy: Annotated[
-        float | None,
-        Query(**FOCAL_RANGE, allow_inf_nan=False, description="focal length y in the photo's pixels (fx alone: same)"),
-    ] = None,
-    cx: Annotated[float | None, Query(**CENTRE_RANGE, allow_inf_nan=False, description="principal point x")] = None,
-    cy: Annotated[float | None, Query(**CENTRE_RANGE, allow_inf_nan=False, description="principal point y")] = None,
-) -> CameraQuery:
-    """The photo's camera as the request gives it; the focal length otherwise comes from EXIF or the model."""
-    return CameraQuery(fx, fy, cx, cy)
-
-
-CameraDep = Annotated[CameraQuery, Depends(camera_query)]
-
-
-def limits_of(settings: SettingsDep) -> Limits:
-    return Limits(settings.max_pixels, settings.inference_max_pixels)
-
-
-LimitsDep = Annotated[Limits, Depends(limits_of)]
 
 
 async def _run(pool: InferencePool, metrics: ServiceMetrics, fn, model: LoadedModel, *args) -> Result:

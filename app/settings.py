@@ -21,7 +21,9 @@ class Settings(BaseSettings):
         description="the default model, NAME (its newest version) or NAME:VERSION, loaded at startup and served "
         "to requests without model=; unset: the registry's only model",
     )
-    max_loaded: int = Field(4, ge=1, description="models kept loaded at once, the default among them")
+    max_loaded: int = Field(
+        4, ge=2, description="models kept loaded at once: the default and at least one a request names"
+    )
     backend: Literal["onnx", "torchscript"] = "onnx"
     threads: int = Field(
         default_factory=lambda: os.cpu_count() or 1, ge=1, description="threads each generator call uses"

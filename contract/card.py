@@ -16,6 +16,7 @@ target and renames it into place, refusing if the version already exists.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import os
@@ -29,6 +30,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from contract.codec import DepthEncoding
+from contract.errors import UserError
 from contract.geometry import ColourCamera
 from contract.spec import GeneratorSpec, InferenceSettings
 
@@ -37,7 +39,11 @@ ONNX_FILE = "generator.onnx"
 TORCHSCRIPT_FILE = "generator.torchscript.pt"
 SEMVER = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)(?:-([0-9A-Za-z.-]+))?$")
 NAME = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
+#: The paper's six metrics, in its Table 2's order.
+PAPER_METRICS = ("rel", "rmse", "log10", "delta1", "delta2", "delta3")
+#: What every evaluation reports and a card records: the paper's metrics and the mean point-cloud RMSE.
+METRIC_KEYS = (*PAPER_METRICS, "pc_rmse_mean")
 #: Generator options that were measured, rejected and removed, with the value that meant "off".
 #: A schema-1 card may name them at that value; one that turned an option on describes a graph
 #: this code cannot check or reproduce, so it is refused.
@@ -49,7 +55,7 @@ RETIRED_GENERATOR_OPTIONS: dict[str, Any] = {
 }
 
 
-class CardError(ValueError):
+class CardError(UserError):
     """A card or its files cannot be trusted; the message names the file and the reason."""
 
 
@@ -107,7 +113,7 @@ class Metrics(BaseModel):
         label: str | None = None,
     ) -> Metrics:
         """An evaluation's table row (the trainer's ``evaluate_frames`` result) as a card entry."""
-        scores = {key: result[key] for key in ("rel", "rmse", "log10", "delta1", "delta2", "delta3", "pc_rmse_mean")}
+        scores = {key: result[key] for key in METRIC_KEYS}
         return cls(
             split=split,
             label=label,
@@ -122,7 +128,7 @@ class FitRecord(BaseModel):
     """How ``rgb2cloud fit`` made a model of one place."""
 
     data: str = Field(description="the recording's path as given")
-    started_from: str = Field(description="the published version whose generator it started from, or 'scratch'")
+    start_from: str = Field(description="the published version whose generator it started from, or 'scratch'")
     budget_min: float
     split: dict[str, Any] = Field(description="train, selection, gap and held-out parts: frames, first, last")
     registered_with: ColourCamera | None = Field(
@@ -150,9 +156,10 @@ class ModelCard(BaseModel):
     generator: GeneratorSpec
     inference: InferenceSettings = Field(description="the settings baked into the exported graph")
     input_multiple: int
-    input_encoding: str
-    output: str = "1 channel, tanh range [-1, 1]; metres via depth_encoding"
-    depth_encoding: DepthEncoding
+    input_encoding: str = Field(
+        description="how the exported graph wants its input; the service serves only the encoding it feeds"
+    )
+    depth_encoding: DepthEncoding = Field(description="the graph's tanh output -> metres")
     camera: Camera
     training: Training
     metrics: list[Metrics] = Field(min_length=1)
@@ -191,7 +198,7 @@ def version_key(version: str) -> tuple:
     """Sort key for semantic versions: a pre-release sorts before its release."""
     m = SEMVER.match(version)
     if not m:
-        raise ValueError(f"not a semantic version: {version!r}")
+        raise UserError(f"not a semantic version: {version!r}")
     major, minor, patch, pre = m.groups()
     return int(major), int(minor), int(patch), pre is None, pre or ""
 
@@ -211,22 +218,33 @@ def migrate_card(card: dict[str, Any]) -> dict[str, Any]:
     Schema 1 kept the inference settings inside ``generator`` beside the architecture, and
     named options since retired. They move to ``inference``; a retired option at its off
     value is dropped, and one that was on is a ``ValueError`` that names it.
+
+    Schema 2 had an ``output`` text that nothing read (the generator spec's ``output_nc``
+    and ``depth_encoding`` say it), dropped in 3, and called a fit's starting version
+    ``started_from``, now ``start_from`` as everywhere else.
     """
     if not isinstance(card, dict):
         raise ValueError("expected a JSON object")
     version = card.get("schema_version", 1)
-    if version == SCHEMA_VERSION:
-        return card
-    if version != 1:
+    if version not in range(1, SCHEMA_VERSION + 1):
         raise ValueError(f"schema_version {version} is not one this reader knows (1 to {SCHEMA_VERSION})")
-    generator = dict(card.get("generator", {}))
-    for key, off in RETIRED_GENERATOR_OPTIONS.items():
-        if key in generator and generator.pop(key) != off:
-            raise ValueError(
-                f"generator.{key} is on, and that option was retired; no current version of rgb2cloud runs this card"
-            )
-    inference = {key: generator.pop(key) for key in InferenceSettings.model_fields if key in generator}
-    return {**card, "schema_version": SCHEMA_VERSION, "generator": generator, "inference": inference}
+    card = copy.deepcopy(card)
+    if version == 1:
+        generator = card.get("generator", {})
+        for key, off in RETIRED_GENERATOR_OPTIONS.items():
+            if key in generator and generator.pop(key) != off:
+                raise ValueError(
+                    f"generator.{key} is on, and that option was retired; no current version of rgb2cloud runs "
+                    "this card"
+                )
+        card["inference"] = {key: generator.pop(key) for key in InferenceSettings.model_fields if key in generator}
+    if version <= 2:
+        card.pop("output", None)
+        fit = (card.get("training") or {}).get("fit")
+        if isinstance(fit, dict) and "started_from" in fit:
+            fit["start_from"] = fit.pop("started_from")
+    card["schema_version"] = SCHEMA_VERSION
+    return card
 
 
 def next_version(registry: Path, name: str) -> str:

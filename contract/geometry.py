@@ -19,6 +19,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from contract.errors import UserError
+
 
 @dataclass(frozen=True)
 class Intrinsics:
@@ -54,10 +56,6 @@ class Intrinsics:
 
     def as_dict(self) -> dict[str, float | int]:
         return asdict(self)
-
-
-#: The Kinect calibration the paper uses (TUM fr3 defaults), at 640x480.
-KINECT_DEFAULT = Intrinsics(fx=535.4, fy=539.2, cx=320.1, cy=247.6, width=640, height=480)
 
 
 def ray_factors(intrinsics: Intrinsics, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -181,7 +179,7 @@ class ColourCamera(BaseModel):
         try:
             return cls.model_validate(yaml.safe_load(text))
         except yaml.YAMLError as e:
-            raise ValueError(f"{text!r} is not YAML: {e}") from None
+            raise UserError(f"{text!r} is not YAML: {e}") from None
 
     def intrinsics(self, width: int, height: int) -> Intrinsics:
         return Intrinsics(self.fx, self.fy, self.cx, self.cy, width, height)

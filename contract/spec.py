@@ -14,12 +14,16 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from contract.errors import UserError
 
-class _Strict(BaseModel):
+
+class Strict(BaseModel):
+    """A settings model that refuses unknown keys: a typo is an error, never a silently ignored setting."""
+
     model_config = ConfigDict(extra="forbid")
 
 
-class GeneratorSpec(_Strict):
+class GeneratorSpec(Strict):
     """pix2pixHD's global generator. The paper: 32 filters in the first layer."""
 
     input_nc: int = 3
@@ -85,7 +89,7 @@ class GeneratorSpec(_Strict):
         return shapes
 
 
-class InferenceSettings(_Strict):
+class InferenceSettings(Strict):
     """How trained weights are run: refinements baked into the exported graph, never trained."""
 
     median_radius: int = Field(
@@ -128,7 +132,7 @@ def parse_inference_options(options: list[str]) -> dict[str, Any]:
     for option in options:
         key, sep, value = option.partition("=")
         if not sep or key not in InferenceSettings.model_fields:
-            raise ValueError(
+            raise UserError(
                 f"--inference {option!r}: expected KEY=VALUE with KEY one of {list(InferenceSettings.model_fields)}"
             )
         changes[key] = value

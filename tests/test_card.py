@@ -42,9 +42,9 @@ def test_a_card_that_turned_on_a_retired_option_is_refused_by_name(tmp_path, opt
 
 def test_retired_options_at_their_off_value_are_dropped_and_nothing_else_is():
     old = {"schema_version": 1, "generator": {"ngf": 8, "skips": False, "upsample_sigma": 0.0, "median_sigma": 0.3}}
-    assert migrate_card(old) == {"schema_version": 2, "generator": {"ngf": 8}, "inference": {"median_sigma": 0.3}}
+    assert migrate_card(old) == {"schema_version": 3, "generator": {"ngf": 8}, "inference": {"median_sigma": 0.3}}
     current = {"schema_version": SCHEMA_VERSION, "generator": {"ngf": 8, "skips": False}}
-    assert migrate_card(current) is current  # a current card is validated as it is: the stray key is an error
+    assert migrate_card(current) == current  # a current card is validated as it is: the stray key is an error
     with pytest.raises(ValueError, match="schema_version 7 is not one this reader knows"):
         migrate_card({"schema_version": 7})
 
@@ -60,3 +60,17 @@ def test_a_current_card_with_an_unknown_key_is_refused(tmp_path):
     (folder / "card.json").write_text("[1, 2]")
     with pytest.raises(CardError, match="expected a JSON object"):
         load_card(folder)
+
+
+def test_a_schema_2_card_drops_its_unread_output_text_and_names_the_start_as_everywhere_else():
+    old = {
+        "schema_version": 2,
+        "output": "1 channel, tanh range [-1, 1]; metres via depth_encoding",
+        "training": {"fit": {"started_from": "weights/rgb2cloud-7scenes/0.8.1", "budget_min": 30.0}},
+    }
+    migrated = migrate_card(old)
+    assert migrated == {
+        "schema_version": SCHEMA_VERSION,
+        "training": {"fit": {"start_from": "weights/rgb2cloud-7scenes/0.8.1", "budget_min": 30.0}},
+    }
+    assert old["training"]["fit"]["started_from"]  # the input is untouched

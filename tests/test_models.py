@@ -14,8 +14,8 @@ import pytest
 from conftest import TUM_FRAME
 from PIL import Image
 
-from app.process import running_service
 from contract.card import CARD_FILE, ONNX_FILE, TORCHSCRIPT_FILE, load_card, publish
+from harness.service import running_service
 
 PHOTO = (TUM_FRAME / "TUM_color.png").read_bytes()
 
@@ -129,5 +129,31 @@ def test_several_models_need_a_default(site_registry):
     with (
         pytest.raises(RuntimeError, match=r"several models .* set RGB2CLOUD_MODEL"),
         running_service(registry=str(site_registry), threads="1"),
+    ):
+        pass
+
+
+def test_a_card_whose_input_or_output_this_service_cannot_keep_is_refused(site_registry):
+    """Every card field that changes what the numbers mean is checked: another input encoding, another grid."""
+    for name, change in [
+        ("bgr", {"input_encoding": "bgr, NCHW float32, value = uint8 / 255"}),
+        ("grid", {"input_multiple": 7}),
+    ]:
+        folder = publish_copy(site_registry / "kitchen" / "1.0.0", site_registry, name, "0.1.0")
+        card = load_card(folder).model_copy(update=change)
+        (folder / CARD_FILE).write_text(card.model_dump_json(indent=2))
+    with running_service(registry=str(site_registry), model="kitchen", threads="1") as service:
+        refused = depth(service.url, "bgr")
+        assert refused.status_code == 409 and "input_encoding 'bgr, NCHW" in refused.json()["detail"]
+        refused = depth(service.url, "grid")
+        assert refused.status_code == 409 and "input_multiple 7" in refused.json()["detail"]
+        assert depth(service.url).status_code == 200
+
+
+def test_a_bound_that_could_not_keep_a_named_model_is_refused_at_startup(site_registry):
+    """With room for the default alone, every named model would be unloaded as soon as it loaded."""
+    with (
+        pytest.raises(RuntimeError, match=r"RGB2CLOUD_MAX_LOADED='1': Input should be greater than or equal to 2"),
+        running_service(registry=str(site_registry), model="kitchen", threads="1", max_loaded="1"),
     ):
         pass

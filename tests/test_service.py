@@ -21,9 +21,8 @@ from PIL import Image
 from plyfile import PlyData
 
 from app.catalog import ModelCatalog
-from app.client import server_timing
-from app.process import running_service
 from app.settings import Settings
+from harness.service import running_service, server_timing
 
 ALLOWED_ORIGIN = "https://viewer.example"
 LIMIT = 2_000_000
@@ -290,6 +289,7 @@ def test_models_and_metrics(service):
     assert "rgb2cloud_inference_in_flight" in text and "rgb2cloud_inference_queued" in text
 
 
+@pytest.mark.slow
 def test_overload_gets_503_with_retry_after_at_once(registry, model):
     big = png_bytes(np.tile(tum_rgb(), (3, 3, 1)))  # 1920x1440 at the model's focal length: slow enough to overlap
 
@@ -341,3 +341,47 @@ def test_torchscript_backend_serves_the_same_depth(registry, service):
     assert r.status_code == 200
     with Image.open(io.BytesIO(r.content)) as a, Image.open(io.BytesIO(onnx_png)) as b:
         assert np.abs(np.asarray(a).astype(int) - np.asarray(b).astype(int)).max() <= 1
+
+
+def test_the_model_dependency_follows_an_overridden_catalog(registry):
+    """Handlers reach the catalog only through ``get_catalog``, so an override reaches every route.
+
+    The app runs under uvicorn in this process (on a thread, on 127.0.0.1), so the override is live.
+    """
+    import threading
+
+    import uvicorn
+
+    from app.deps import get_catalog
+    from app.main import create_app
+    from harness.service import free_port
+
+    settings = Settings(registry=registry, threads=1)
+    catalog = ModelCatalog(settings)
+    catalog.load_default()
+    app = create_app(settings, catalog)
+    app.dependency_overrides[get_catalog] = lambda: ModelCatalog(settings)  # nothing loaded: not ready
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        url = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 30
+        while not server.started and time.monotonic() < deadline:
+            time.sleep(0.05)
+        photo = png_bytes(tum_rgb(32, 32))
+        response = post(url, "/depth", photo)
+        assert response.status_code == 503 and "not loaded yet" in response.json()["detail"]
+        assert httpx.get(f"{url}/readyz", timeout=5).status_code == 503
+        app.dependency_overrides.clear()
+        assert post(url, "/depth", photo).status_code == 200
+    finally:
+        server.should_exit = True
+        thread.join(timeout=10)
+
+
+def test_the_service_names_the_installed_version(service):
+    from importlib.metadata import version
+
+    assert httpx.get(f"{service}/openapi.json", timeout=5).json()["info"]["version"] == version("rgb2cloud")
