@@ -53,8 +53,8 @@ def train(
     from trainer.train import train as run
 
     summary = run(load_config(config, set_), resume=resume)
-    if summary["best"]:
-        typer.echo(f"best validation {summary['best']['metrics']} at step {summary['best']['step']}")
+    if summary.best:
+        typer.echo(f"best validation {summary.best.metrics} at step {summary.best.step}")
 
 
 @app.command()
@@ -162,7 +162,7 @@ def fit(
         name=name,
         licence=licence,
         budget_min=budget,
-        start=from_,
+        start_from=from_,
         registry=registry,
         format=format,
         camera=CameraFile(fx, fy, cx, cy, depth_scale),
@@ -274,10 +274,19 @@ def parse_colour_camera(text: str, option: str = "--colour-camera") -> ColourCam
 
 
 def run_app(commands: typer.Typer) -> None:
-    """Run a command line; mistakes a user can fix (bad paths, configs, versions) print one line, exit 1."""
+    """Run a command line; mistakes a user can fix print one line and exit 1, a bug keeps its traceback.
+
+    A user's mistake is a ``UserError`` (a bad config, recording, card or option), a ``ValidationError``
+    (options or files that do not fit their schema) or an ``OSError`` (a path that is missing or
+    unreadable); anything else propagates, so its traceback says where the bug is.
+    """
+    from pydantic import ValidationError
+
+    from contract.errors import UserError
+
     try:
         commands()
-    except (OSError, ValueError) as e:
+    except (OSError, UserError, ValidationError) as e:
         typer.echo(f"error: {e}", err=True)
         raise SystemExit(1) from None
 

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import maximum_filter, minimum_filter
 
+from contract.errors import UserError
 from contract.geometry import ColourCamera
 from trainer.config import DataSource
 from trainer.data.frames import Frame
@@ -101,7 +102,7 @@ class WhereFails:
     def result(self) -> dict[str, float | None]:
         """Shares of pixels; a rate is None where it has no pixel to count."""
         if not self.valid:
-            raise ValueError("no valid ground-truth pixels were seen")
+            raise UserError("no valid ground-truth pixels were seen")
         smooth = self.valid - self.near
         return {
             "pixels_near_steps": self.near / self.valid,

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import yaml
 
+from contract.errors import UserError
 from lab.records import ScoreRecord, is_record, record_config
 
 
@@ -18,10 +19,10 @@ def read_experiments(path: Path) -> dict[str, Path]:
     """The compared runs a YAML file names (label -> path), each checked to exist."""
     entries = yaml.safe_load(Path(path).read_text()) or {}
     if not isinstance(entries, dict):
-        raise ValueError(f"{path}: expected a mapping of label -> path")
+        raise UserError(f"{path}: expected a mapping of label -> path")
     missing = [str(p) for p in entries.values() if not Path(p).exists()]
     if missing:
-        raise ValueError(f"{path}: no such checkpoint, version or record: {', '.join(missing)}")
+        raise UserError(f"{path}: no such checkpoint, version or record: {', '.join(missing)}")
     return {str(label): Path(p) for label, p in entries.items()}
 
 

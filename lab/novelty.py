@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from contract.errors import UserError
 from trainer.data.frames import parse_frame_ranges
 
 #: A turn of this many degrees counts like one metre of camera travel when picking the
@@ -39,7 +40,7 @@ def read_poses(root: Path, frames: str) -> np.ndarray:
             raise FileNotFoundError(f"{path}: no pose file")
         pose = np.loadtxt(path, dtype=np.float64)
         if pose.shape != (4, 4):
-            raise ValueError(f"{path}: expected a 4x4 pose, got shape {pose.shape}")
+            raise UserError(f"{path}: expected a 4x4 pose, got shape {pose.shape}")
         poses.append(pose)
     return np.stack(poses)
 
@@ -79,7 +80,7 @@ def novelty_table(root: Path, splits: list[str]) -> str:
     pairs = [split.partition(":") for split in splits]
     for split, (train, sep, held_out) in zip(splits, pairs, strict=True):
         if not sep or not train or not held_out:
-            raise ValueError(f"{split!r}: expected TRAIN:HELD_OUT, e.g. 0-669:720-799")
+            raise UserError(f"{split!r}: expected TRAIN:HELD_OUT, e.g. 0-669:720-799")
     lines = [
         "| train | held out | frames | closest training view: distance (m) | turn (deg) |",
         "|---|---|---|---|---|",

@@ -27,6 +27,7 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
+from contract.errors import UserError
 from trainer.config import RETIRED_OPTIONS, complete_config, retired_options_on
 
 
@@ -67,7 +68,7 @@ def read_record(path: Path, split: str, min_m: float, max_m: float, unseen: str)
     wanted = {"split": split, "min_m": min_m, "max_m": max_m, "unseen": unseen}
     stored = {key: getattr(record, key) for key in wanted}
     if stored != wanted:
-        raise ValueError(f"{path}: scored on {stored}, but this report scores on {wanted}; re-score its checkpoint")
+        raise UserError(f"{path}: scored on {stored}, but this report scores on {wanted}; re-score its checkpoint")
     return record
 
 
@@ -110,10 +111,10 @@ def record_from_evaluations(
     share one depth range, as the report's rows do.
     """
     if test["depth_range_m"] != unseen["depth_range_m"]:
-        raise ValueError(f"test scored on {test['depth_range_m']} m, unseen on {unseen['depth_range_m']} m")
+        raise UserError(f"test scored on {test['depth_range_m']} m, unseen on {unseen['depth_range_m']} m")
     frames = unseen["metrics"]["images"]
     if frames != unseen_images:
-        raise ValueError(f"the unseen evaluation scored {frames} frame(s), {unseen_manifest} has {unseen_images}")
+        raise UserError(f"the unseen evaluation scored {frames} frame(s), {unseen_manifest} has {unseen_images}")
     min_m, max_m = test["depth_range_m"]
 
     def protocol(metrics: dict) -> dict:

@@ -26,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from contract.card import ModelCard, load_card
+from contract.card import PAPER_METRICS, ModelCard, load_card
+from contract.errors import UserError
 from contract.geometry import ColourCamera
 from contract.spec import GeneratorSpec
 from lab.diagnostics import MedianScaled
@@ -38,7 +39,6 @@ from trainer.config import complete_config, load_config
 from trainer.data.manifest import ManifestReader
 from trainer.data.sevenscenes import SevenScenesReader
 from trainer.evaluate import PAPER_TUM, beats, evaluate_frames, load_predictor, markdown_table
-from trainer.metrics import METRIC_NAMES
 from trainer.visualize import plot_pc_curve, sample_grid
 
 #: The paper's mean point-cloud RMSE on NYU (on TUM it is PAPER_TUM["pc_rmse_mean"]).
@@ -75,7 +75,7 @@ def training_config(path: Path) -> dict:
         return complete_config({**card.training.config, "generator": spec, "inference": inference})
     from trainer.checkpoint import load_checkpoint
 
-    return complete_config(load_checkpoint(path)["config"])
+    return complete_config(load_checkpoint(path).config)
 
 
 def colour_camera_of(config: dict, root: Path) -> ColourCamera | None:
@@ -90,7 +90,7 @@ def colour_camera_of(config: dict, root: Path) -> ColourCamera | None:
         if s["format"] == "7scenes" and Path(s["root"]).name == root.name and s.get("colour_camera")
     }
     if len(cameras) > 1:
-        raise ValueError(f"the run registered {root.name} to {len(cameras)} different colour cameras")
+        raise UserError(f"the run registered {root.name} to {len(cameras)} different colour cameras")
     return ColourCamera.model_validate(json.loads(cameras.pop())) if cameras else None
 
 
@@ -156,9 +156,9 @@ def _scale_paragraph(result: dict) -> str:
 
 def _paper_line(result: dict) -> str:
     won = beats(result, PAPER_TUM)
-    better = [k for k in METRIC_NAMES if won[k]]
+    better = [k for k in PAPER_METRICS if won[k]]
     # Four decimals where it falls short: a miss can round to the paper's own three-decimal figure.
-    worse = [f"{k}: {result[k]:.4f} against {PAPER_TUM[k]}" for k in METRIC_NAMES if not won[k]]
+    worse = [f"{k}: {result[k]:.4f} against {PAPER_TUM[k]}" for k in PAPER_METRICS if not won[k]]
     return f"**better than the paper on {len(better)} of 6 metrics**" + (
         f" (not on {'; '.join(worse)})" if worse else ""
     )

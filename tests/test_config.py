@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
-import pytest
-from conftest import REPO, SEVEN_SCENES, tiny_config, write_config
-from pydantic import ValidationError
+import sys
 
+import pytest
+import typer
+from conftest import REPO, SEVEN_SCENES, tiny_config, write_config
+
+from cli.main import run_app
 from contract.card import load_card
+from contract.errors import UserError
 from trainer.config import OptimConfig, apply_overrides, complete_config, load_config, migrate_config
 
 
@@ -21,9 +25,9 @@ def test_overrides_are_typed_and_nested(tmp_path):
 
 def test_typos_and_bad_values_are_errors(tmp_path):
     path = write_config(tmp_path / "c.yaml", tiny_config(tmp_path / "run"))
-    with pytest.raises(ValidationError, match="stpes"):
+    with pytest.raises(UserError, match="stpes"):
         load_config(path, ["train.stpes=5"])
-    with pytest.raises(ValidationError, match="multiple of 4"):
+    with pytest.raises(UserError, match="multiple of 4"):
         load_config(path, ["data.transform.size=[90, 128]"])
     with pytest.raises(ValueError, match=r"section\.key=value"):
         apply_overrides({}, ["train.steps"])
@@ -35,12 +39,21 @@ def test_linear_decay_schedule():
     assert OptimConfig().lr_at(10**6) == 0.0002  # the paper: constant
 
 
+BUNDLED_VERSIONS = sorted((REPO / "weights").glob("*/*"))
+
+
 def test_every_config_file_loads():
-    for path in sorted((REPO / "configs").glob("*.yaml")):
+    paths = sorted((REPO / "configs").glob("*.yaml"))
+    assert paths, "configs/ holds no config to check"
+    for path in paths:
         load_config(path)
 
 
-@pytest.mark.parametrize("version_dir", sorted((REPO / "weights").glob("*/*")), ids=lambda p: f"{p.parent.name}")
+def test_there_are_bundled_versions_to_check():
+    assert BUNDLED_VERSIONS, "weights/ holds no published version: the per-version tests below check nothing"
+
+
+@pytest.mark.parametrize("version_dir", BUNDLED_VERSIONS, ids=lambda p: f"{p.parent.name}")
 def test_each_bundled_model_has_one_config_that_reproduces_it(version_dir):
     """configs/NAME-VERSION.yaml is the training config in the card, plus the inference settings exported.
 
@@ -83,3 +96,26 @@ def test_an_old_config_migrates_and_a_retired_option_that_was_on_is_refused():
         ValueError, match=r"retired options \{'generator.skips': True, 'loss.gradient_matching': 50.0\}"
     ):
         migrate_config({"generator": {"skips": True}, "loss": {"gradient_matching": 50.0}})
+
+
+def _failing_command_line() -> typer.Typer:
+    commands = typer.Typer()
+
+    @commands.command()
+    def go(kind: str) -> None:
+        if kind == "mistake":
+            raise UserError("recording/: no colour image has a depth image")
+        raise KeyError("an index the code got wrong")
+
+    return commands
+
+
+def test_a_users_mistake_is_one_line_and_a_bug_keeps_its_traceback(monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["rgb2cloud", "mistake"])
+    with pytest.raises(SystemExit) as stopped:
+        run_app(_failing_command_line())
+    assert stopped.value.code == 1
+    assert capsys.readouterr().err == "error: recording/: no colour image has a depth image\n"
+    monkeypatch.setattr(sys, "argv", ["rgb2cloud", "bug"])
+    with pytest.raises(KeyError, match="an index the code got wrong"):  # not swallowed into one line
+        run_app(_failing_command_line())

@@ -55,8 +55,10 @@ def test_evaluate_prints_the_paper_table_and_writes_reports(evaluated):
         assert im.size == (3 * 640, 2 * 480)  # RGB | predicted | truth, full resolution
 
 
+@pytest.mark.slow
 def test_parity_at_two_sizes_one_off_grid(trained_checkpoint, tmp_path):
-    graph, config, _ = load_graph(trained_checkpoint)
+    graph, weights = load_graph(trained_checkpoint)
+    config = weights.config
     export_onnx(graph, tmp_path / ONNX_FILE)
     export_torchscript(graph, tmp_path / TORCHSCRIPT_FILE)
     model = onnx.load(str(tmp_path / ONNX_FILE))
@@ -70,6 +72,7 @@ def test_parity_at_two_sizes_one_off_grid(trained_checkpoint, tmp_path):
     assert runner.predict_raw(image[: 481 - 4, : 641 - 6]).shape == (477, 635)
 
 
+@pytest.mark.slow
 def test_a_published_version_runs_and_publishes_again_with_other_inference_settings(
     trained_checkpoint, evaluated, tmp_path
 ):
@@ -117,6 +120,7 @@ def test_evaluate_refuses_an_unknown_inference_setting_in_one_line(trained_check
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_checkpoint, evaluated, tmp_path):
     out, _ = evaluated
     args = export_args(trained_checkpoint, out / "metrics.json", tmp_path / "registry")
@@ -217,9 +221,11 @@ def test_registry_verifies_orders_versions_and_never_overwrites(tmp_path):
         _card("v1")
 
 
+@pytest.mark.slow
 def test_the_onnx_path_runs_on_the_contract_alone_without_torch(trained_checkpoint, tmp_path):
     """What the service needs (geometry, codec, card, runtime on ONNX) works without torch."""
-    graph, config, _ = load_graph(trained_checkpoint)
+    graph, weights = load_graph(trained_checkpoint)
+    config = weights.config
     export_onnx(graph, tmp_path / ONNX_FILE)
     code = f"""
 import sys

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from contract.errors import UserError
 from trainer.config import DataSource
 from trainer.data.frames import Frame
 from trainer.data.sources import describe, open_source
@@ -31,7 +32,7 @@ def fit_baselines(train: Sequence[Frame]) -> dict[str, np.ndarray | float]:
     for i in range(len(train)):
         depth = train[i].depth
         if depth.shape != first.shape:
-            raise ValueError(f"{train[i].name}: {depth.shape} differs from {first.shape}; baselines need one size")
+            raise UserError(f"{train[i].name}: {depth.shape} differs from {first.shape}; baselines need one size")
         stack[i] = np.where(depth > 0, depth, np.nan)
     constant = float(np.nanmedian(stack))
     with warnings.catch_warnings():  # pixels with no valid training depth are expected

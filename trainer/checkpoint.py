@@ -1,91 +1,193 @@
 """Checkpoints: everything a run needs to continue exactly, written atomically.
 
-Loading a generator also takes a published version folder, whose TorchScript
-weights and card stand in for a checkpoint that may no longer exist.
+On disk a checkpoint is a dict of tensors and plain values (``torch.load`` with
+``weights_only=True`` reads nothing else); in code it is a ``Checkpoint``. A generator
+to run or start from is ``TrainedWeights``, which a published version folder gives too:
+its TorchScript weights and card stand in for a checkpoint that may no longer exist.
 """
 
 from __future__ import annotations
 
 import os
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from contract.card import TORCHSCRIPT_FILE, load_card, verify_files
-from contract.spec import GeneratorSpec
+from contract.errors import UserError
+from contract.spec import GeneratorSpec, InferenceSettings
 from trainer.config import RunConfig, migrate_config
 from trainer.inference import InferenceGraph
 from trainer.networks import GlobalGenerator
 
+StateDict = dict[str, Any]
 
-def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
+
+@dataclass(frozen=True)
+class HardwareStretch:
+    """Steps from ``first_step`` on ran on ``hardware`` (until the next stretch, or the run's end)."""
+
+    first_step: int
+    hardware: str
+
+
+def hardware_history(stretches: list[HardwareStretch], step: int) -> str:
+    """The card's hardware line: one machine, or each stretch of steps when a resume changed it."""
+    if len(stretches) == 1:
+        return stretches[0].hardware
+    ends = [s.first_step for s in stretches[1:]] + [step]
+    return "; ".join(f"steps {s.first_step}-{end}: {s.hardware}" for s, end in zip(stretches, ends, strict=True))
+
+
+@dataclass
+class Best:
+    """The best validation so far: its score (lower is better), step and metrics."""
+
+    score: float
+    step: int
+    metrics: dict[str, float]
+
+
+@dataclass
+class Checkpoint:
+    """A run's whole state after ``step`` steps: networks, optimisers, scaler, clock and history."""
+
+    generator: StateDict
+    discriminator: StateDict
+    opt_g: StateDict
+    opt_d: StateDict
+    scaler: StateDict
+    step: int
+    best: Best | None
+    train_seconds: float
+    stretches: list[HardwareStretch]
+    config: dict[str, Any]
+
+    @property
+    def hardware(self) -> str:
+        return hardware_history(self.stretches, self.step)
+
+    def to_dict(self) -> dict[str, Any]:
+        state = {key: getattr(self, key) for key in ("generator", "discriminator", "opt_g", "opt_d", "scaler")}
+        return {
+            **state,
+            "step": self.step,
+            "best": None if self.best is None else asdict(self.best),
+            "train_seconds": self.train_seconds,
+            "hardware": self.hardware,
+            "hardware_segments": [[s.first_step, s.hardware] for s in self.stretches],
+            "config": self.config,
+        }
+
+    @classmethod
+    def from_dict(cls, state: dict[str, Any]) -> Checkpoint:
+        """A checkpoint as saved; one saved before stretches were kept ran on its one ``hardware``."""
+        segments = state.get("hardware_segments") or [[0, state["hardware"]]]
+        return cls(
+            **{key: state[key] for key in ("generator", "discriminator", "opt_g", "opt_d", "scaler", "step")},
+            best=None if state["best"] is None else Best(**state["best"]),
+            train_seconds=state["train_seconds"],
+            stretches=[HardwareStretch(first, hardware) for first, hardware in segments],
+            config=state["config"],
+        )
+
+
+@dataclass
+class TrainedWeights:
+    """A generator's weights with what made them: from a checkpoint, or a published version."""
+
+    generator: StateDict
+    config: RunConfig
+    step: int
+    train_seconds: float
+    hardware: str
+    #: ``NAME VERSION`` when read from a published version folder.
+    published: str | None = None
+    #: The settings it runs with: a published version's as exported, else its run config's.
+    inference: InferenceSettings = field(default_factory=InferenceSettings)
+
+
+def save_checkpoint(path: Path, checkpoint: Checkpoint) -> None:
     """Write to a temporary name and rename, so a crash never leaves half a file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save(state, tmp)
+    torch.save(checkpoint.to_dict(), tmp)
     os.replace(tmp, path)
 
 
-def load_checkpoint(path: Path) -> dict[str, Any]:
+def load_checkpoint(path: Path) -> Checkpoint:
     if not Path(path).is_file():
         raise FileNotFoundError(f"{path}: no checkpoint")
-    return torch.load(path, map_location="cpu", weights_only=True)
+    return Checkpoint.from_dict(torch.load(path, map_location="cpu", weights_only=True))
 
 
-def load_state(path: Path) -> tuple[dict[str, Any], RunConfig]:
-    """A checkpoint's state, or a published version's stand-in for one, with its run config migrated."""
+def load_weights(path: Path) -> TrainedWeights:
+    """A checkpoint's generator, or a published version's, with its run config migrated."""
     path = Path(path)
-    state = _published_state(path) if path.is_dir() else load_checkpoint(path)
-    return state, RunConfig.model_validate(migrate_config(state["config"]))
+    if path.is_dir():
+        return _published_weights(path)
+    checkpoint = load_checkpoint(path)
+    config = RunConfig.model_validate(migrate_config(checkpoint.config))
+    return TrainedWeights(
+        checkpoint.generator,
+        config,
+        checkpoint.step,
+        checkpoint.train_seconds,
+        checkpoint.hardware,
+        inference=config.inference,
+    )
 
 
-def load_graph(path: Path, inference: dict[str, Any] | None = None) -> tuple[InferenceGraph, RunConfig, dict[str, Any]]:
-    """The inference graph of a checkpoint or a published version, in eval mode, with its run config.
+def load_graph(path: Path, inference: dict[str, Any] | None = None) -> tuple[InferenceGraph, TrainedWeights]:
+    """The inference graph of a checkpoint or a published version, in eval mode, with what made it.
 
     ``inference`` changes some of its inference settings (``contract.spec.InferenceSettings``),
     so trained weights can be scored and exported with another inference path; the
-    returned config carries the settings in use.
+    returned weights' config and ``inference`` carry the settings in use.
 
     A published version folder (checked against its card) gives the weights in its
-    TorchScript file and a state rebuilt from its card, so a version whose training
+    TorchScript file and a config rebuilt from its card, so a version whose training
     checkpoint is gone can still be run another way and published again.
     """
-    state, config = load_state(path)
-    config.inference = state.get("inference", config.inference).updated(inference or {})
-    generator = GlobalGenerator(config.generator)
-    generator.load_state_dict(state["generator"])  # strict: a spec that does not fit the weights fails loudly
-    return InferenceGraph(generator, config.inference).eval(), config, state
+    weights = load_weights(path)
+    weights.inference = weights.inference.updated(inference or {})
+    weights.config.inference = weights.inference
+    generator = GlobalGenerator(weights.config.generator)
+    generator.load_state_dict(weights.generator)  # strict: a spec that does not fit the weights fails loudly
+    return InferenceGraph(generator, weights.inference).eval(), weights
 
 
-def load_generator_weights(path: Path, spec: GeneratorSpec) -> dict[str, Any]:
+def load_generator_weights(path: Path, spec: GeneratorSpec) -> StateDict:
     """The generator weights of a checkpoint or published version, to start a run from.
 
     Only the generator carries over: a new place needs a discriminator that judges it
     afresh. The spec must be the run's own, so the weights fit the network.
     """
-    state, config = load_state(path)
-    theirs = config.generator
+    weights = load_weights(path)
+    theirs = weights.config.generator
     if theirs != spec:
-        raise ValueError(f"{path}: its generator {theirs.model_dump()} is not this run's {spec.model_dump()}")
-    return state["generator"]
+        raise UserError(f"{path}: its generator {theirs.model_dump()} is not this run's {spec.model_dump()}")
+    return weights.generator
 
 
-def _published_state(version_dir: Path) -> dict[str, Any]:
+def _published_weights(version_dir: Path) -> TrainedWeights:
     """What a checkpoint holds that a published version can give back: its weights and its training."""
     card = load_card(version_dir)
     verify_files(version_dir, card)
-    weights = torch.jit.load(str(version_dir / TORCHSCRIPT_FILE), map_location="cpu").state_dict()
+    state = torch.jit.load(str(version_dir / TORCHSCRIPT_FILE), map_location="cpu").state_dict()
     # Export writes the inference graph, whose generator's keys start "generator."; a schema-1
     # card's file is the bare generator, whose keys are the generator's own.
-    generator = {key.removeprefix("generator."): tensor for key, tensor in weights.items()}
-    return {
-        "generator": generator,
-        "inference": card.inference,  # as exported, which may differ from the training config's
-        "config": {**card.training.config, "generator": card.generator.model_dump()},
-        "step": card.training.steps,
-        "train_seconds": card.training.duration_s,
-        "hardware": card.training.hardware,
-        "published": f"{card.name} {card.version}",
-    }
+    generator = {key.removeprefix("generator."): tensor for key, tensor in state.items()}
+    config = {**card.training.config, "generator": card.generator.model_dump()}
+    return TrainedWeights(
+        generator,
+        RunConfig.model_validate(migrate_config(config)),
+        card.training.steps,
+        card.training.duration_s,
+        card.training.hardware,
+        published=f"{card.name} {card.version}",
+        inference=card.inference,  # as exported, which may differ from the training config's
+    )

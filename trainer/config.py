@@ -17,20 +17,17 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, ValidationError, model_validator
 
 from contract.card import RETIRED_GENERATOR_OPTIONS
 from contract.codec import DepthEncoding
+from contract.errors import UserError
 from contract.geometry import ColourCamera
-from contract.spec import GeneratorSpec, InferenceSettings
+from contract.spec import GeneratorSpec, InferenceSettings, Strict
 from trainer.data.folders import CameraFile
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class DiscriminatorConfig(_Strict):
+class DiscriminatorConfig(Strict):
     """Multi-scale PatchGAN: D1 at full resolution, D2 at half, and so on."""
 
     ndf: int = Field(32, ge=1)
@@ -38,7 +35,7 @@ class DiscriminatorConfig(_Strict):
     num_d: int = Field(2, ge=1)
 
 
-class LossConfig(_Strict):
+class LossConfig(Strict):
     """Formula (2) or LSGAN, plus mu times formula (3)'s feature matching."""
 
     gan_mode: Literal["lsgan", "vanilla"] = Field(
@@ -48,7 +45,7 @@ class LossConfig(_Strict):
     l1_depth: float = Field(0.0, ge=0, description="beyond the paper, opt-in: masked L1 between encoded depths")
 
 
-class OptimConfig(_Strict):
+class OptimConfig(Strict):
     """Adam as in the paper; optional pix2pixHD-style linear decay to zero."""
 
     lr: float = Field(0.0002, gt=0)
@@ -63,7 +60,7 @@ class OptimConfig(_Strict):
         return self.lr * max(0.0, 1.0 - (step - self.decay_start) / self.decay_steps)
 
 
-class DataSource(_Strict):
+class DataSource(Strict):
     """One dataset on disk. ``root`` is a folder, or a file for nyu and csv."""
 
     format: Literal["7scenes", "tum", "nyu", "csv", "folders"]
@@ -85,7 +82,7 @@ class DataSource(_Strict):
     )
 
 
-class TransformConfig(_Strict):
+class TransformConfig(Strict):
     """Paired random transforms for training; one parameter draw moves RGB, depth and intrinsics."""
 
     size: tuple[int, int] = Field((240, 320), description="training crop (height, width)")
@@ -96,16 +93,18 @@ class TransformConfig(_Strict):
     saturation: float = Field(0.2, ge=0)
 
 
-class DataConfig(_Strict):
+class DataConfig(Strict):
     train: list[DataSource]
-    val: list[DataSource] = []
+    val: list[DataSource] = Field(default_factory=list)
     val_scale: float = Field(0.5, gt=0, le=1, description="validation images are resized by this")
     transform: TransformConfig = TransformConfig()
     eval_min_m: float = Field(0.1, gt=0, description="metrics use ground truth in [eval_min_m, eval_max_m]")
     eval_max_m: float = Field(10.0, gt=0)
 
 
-class LoopConfig(_Strict):
+class TrainConfig(Strict):
+    """The ``train:`` section: how long, how fast, where to write, and where to start from."""
+
     out_dir: Path = Path("runs/default")
     steps: int = Field(1000, ge=1)
     batch_size: int = Field(4, ge=1, description="per process")
@@ -118,14 +117,14 @@ class LoopConfig(_Strict):
     checkpoint_every: int = Field(500, ge=1)
     select_metric: Literal["rel", "rmse", "log10", "delta1"] = "rel"
     threads: int | None = Field(None, ge=1, description="torch CPU threads per process")
-    init_from: Path | None = Field(
+    start_from: Path | None = Field(
         None,
         description="start the generator from this published version folder or checkpoint (its generator "
         "spec must be this run's); the discriminator starts fresh",
     )
 
 
-class RunConfig(_Strict):
+class RunConfig(Strict):
     """Everything that defines a training run; saved in checkpoints and cards.
 
     ``inference`` is how the trained weights are run when validated and exported;
@@ -139,7 +138,7 @@ class RunConfig(_Strict):
     optim: OptimConfig = OptimConfig()
     depth: DepthEncoding = DepthEncoding()
     data: DataConfig
-    train: LoopConfig = LoopConfig()
+    train: TrainConfig = TrainConfig()
 
     @model_validator(mode="after")
     def _crop_fits_grid(self) -> RunConfig:
@@ -154,7 +153,7 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     """``a.b.c=value`` -> (['a', 'b', 'c'], value parsed as YAML)."""
     key, sep, raw = text.partition("=")
     if not sep or not key:
-        raise ValueError(f"override {text!r} is not of the form section.key=value")
+        raise UserError(f"override {text!r} is not of the form section.key=value")
     return key.split("."), yaml.safe_load(raw)
 
 
@@ -183,6 +182,10 @@ RETIRED_OPTIONS: dict[tuple[str, ...], Any] = {
 }
 
 
+#: Run-config options renamed since, old path -> new key in the same section.
+RENAMED_OPTIONS: dict[tuple[str, ...], str] = {("train", "init_from"): "start_from"}
+
+
 def retired_options_on(saved: dict[str, Any]) -> dict[str, Any]:
     """The retired options a saved config turned on, as ``{"section.key": value}`` (empty: none)."""
     found = {}
@@ -199,12 +202,13 @@ def migrate_config(saved: dict[str, Any]) -> dict[str, Any]:
     """A config saved by any version of the trainer in today's shape (a new dict).
 
     Inference settings that older runs kept in ``generator`` move to ``inference``;
-    retired options at their off value are dropped, and one that was on is a
-    ``ValueError`` that names it, so nothing is silently ignored.
+    renamed options take their new name; retired options at their off value are
+    dropped, and one that was on is a ``ValueError`` that names it, so nothing is
+    silently ignored.
     """
     on = retired_options_on(saved)
     if on:
-        raise ValueError(f"the config turns on retired options {on}; no current version of rgb2cloud trains them")
+        raise UserError(f"the config turns on retired options {on}; no current version of rgb2cloud trains them")
     tree = copy.deepcopy(saved)
     for path in RETIRED_OPTIONS:
         node = tree
@@ -212,6 +216,12 @@ def migrate_config(saved: dict[str, Any]) -> dict[str, Any]:
             node = node.get(part) if isinstance(node, dict) else None
         if isinstance(node, dict):
             node.pop(path[-1], None)
+    for (*section, old), new in RENAMED_OPTIONS.items():
+        node = tree
+        for part in section:
+            node = node.get(part) if isinstance(node, dict) else None
+        if isinstance(node, dict) and old in node:
+            node[new] = node.pop(old)
     generator = tree.get("generator")
     if isinstance(generator, dict):
         moved = {key: generator.pop(key) for key in InferenceSettings.model_fields if key in generator}
@@ -233,6 +243,12 @@ def load_config(path: Path | None, overrides: list[str] = ()) -> RunConfig:
     """A YAML file plus overrides. Relative data paths resolve against the working directory."""
     tree: dict[str, Any] = {}
     if path is not None:
-        tree = yaml.safe_load(Path(path).read_text()) or {}
+        try:
+            tree = yaml.safe_load(Path(path).read_text()) or {}
+        except yaml.YAMLError as e:
+            raise UserError(f"{path}: not YAML: {e}") from None
     tree = apply_overrides(migrate_config(tree), list(overrides))
-    return RunConfig.model_validate(tree)
+    try:
+        return RunConfig.model_validate(tree)
+    except ValidationError as e:
+        raise UserError(f"{path or 'the config'}: {e}") from None

@@ -16,6 +16,7 @@ import torch.distributed as dist
 from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 
+from contract.errors import UserError
 from trainer.machine import cpu_description
 
 
@@ -41,7 +42,7 @@ def setup_distributed(device_kind: str) -> Distributed:
 
 def pick_device(choice: str, local_rank: int) -> torch.device:
     if choice == "cuda" and not torch.cuda.is_available():
-        raise ValueError("train.device=cuda, but torch sees no CUDA device (use train.device=auto or cpu)")
+        raise UserError("train.device=cuda, but torch sees no CUDA device (use train.device=auto or cpu)")
     if choice == "cuda" or (choice == "auto" and torch.cuda.is_available()):
         torch.cuda.set_device(local_rank)
         return torch.device("cuda", local_rank)
@@ -54,26 +55,15 @@ def hardware_description(device: torch.device, world_size: int) -> str:
     return f"CPU {cpu_description()}, {world_size} process(es), {torch.get_num_threads()} threads each"
 
 
-def hardware_history(segments: list[list], step: int) -> str:
-    """The card's hardware line: one machine, or each stretch of steps when a resume changed it.
-
-    ``segments`` holds ``[first_step, hardware]`` pairs in order; ``step`` ends the last one.
-    """
-    if len(segments) == 1:
-        return segments[0][1]
-    ends = [start for start, _ in segments[1:]] + [step]
-    return "; ".join(f"steps {start}-{end}: {hw}" for (start, hw), end in zip(segments, ends, strict=True))
-
-
 def leave_process_group() -> None:
     """Tear the process group down in a set order, while the interpreter is still whole.
 
-    In CI, rank 0 of a finished CPU run once aborted at exit ("terminate called without
-    an active exception", SIGABRT) after its last step. The DDP wrappers' reducers
-    hold the group and its gloo threads; if they outlive ``destroy_process_group`` they
-    are freed during interpreter shutdown in no set order. So every rank first meets the
-    others (the barrier at the end of ``trainer.train``'s run), then the wrappers, gone with
-    the run's frame or held in a cycle, are collected, and only then is the group destroyed.
+    The DDP wrappers' reducers hold the group and its gloo threads. If they outlive
+    ``destroy_process_group``, they are freed during interpreter shutdown in no set order,
+    and a finished rank can abort at exit ("terminate called without an active exception").
+    So every rank first meets the others (the barrier at the end of ``trainer.train``'s run),
+    then the wrappers, gone with the run's frame or held in a cycle, are collected, and only
+    then is the group destroyed.
     """
     gc.collect()
     dist.destroy_process_group()

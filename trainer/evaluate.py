@@ -15,7 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 from tqdm import tqdm
 
-from contract.card import ONNX_FILE, load_card, verify_files
+from contract.card import METRIC_KEYS, ONNX_FILE, PAPER_METRICS, load_card, verify_files
 from contract.geometry import ColourCamera
 from contract.runtime import OnnxGenerator
 from trainer.checkpoint import load_graph
@@ -24,7 +24,7 @@ from trainer.data.frames import Frame
 from trainer.data.sources import describe, open_source
 from trainer.data.transforms import resize_frame
 from trainer.inference import EagerGenerator
-from trainer.metrics import METRIC_NAMES, MetricAccumulator, valid_mask
+from trainer.metrics import MetricAccumulator, valid_mask
 from trainer.registration import sample_at_colour
 from trainer.visualize import plot_pc_curve, sample_grid
 
@@ -38,7 +38,6 @@ PAPER_TUM = {
     "delta3": 0.990,
     "pc_rmse_mean": 0.420,
 }
-COLUMNS = (*METRIC_NAMES, "pc_rmse_mean")
 HEADERS = ("REL", "RMSE (m)", "log10", "δ<1.25", "δ<1.25²", "δ<1.25³", "PC RMSE (m)")
 LOWER_IS_BETTER = {"rel", "rmse", "log10", "pc_rmse_mean"}
 
@@ -120,15 +119,15 @@ def load_predictor(
         verify_files(path, card)
         runner = OnnxGenerator(path / ONNX_FILE, card.input_multiple)
         return (lambda rgb: card.depth_encoding.decode(runner.predict_raw(rgb))), f"{card.name} {card.version} (ONNX)"
-    graph, config, state = load_graph(path, inference)
-    runner = EagerGenerator(graph, config.generator.input_multiple)
-    how = config.inference.describe()
+    graph, weights = load_graph(path, inference)
+    runner = EagerGenerator(graph, weights.config.generator.input_multiple)
+    how = weights.inference.describe()
     how = f", {how}" if how else ""
-    if "published" in state:
-        label = f"{state['published']} (eager{how})"
+    if weights.published:
+        label = f"{weights.published} (eager{how})"
     else:
-        label = f"rgb2cloud ({_run_name(path)}, step {state['step']}{how})"
-    return (lambda rgb: config.depth.decode(runner.predict_raw(rgb))), label
+        label = f"rgb2cloud ({_run_name(path)}, step {weights.step}{how})"
+    return (lambda rgb: weights.config.depth.decode(runner.predict_raw(rgb))), label
 
 
 def _run_name(checkpoint: Path) -> str:
@@ -146,13 +145,13 @@ def markdown_table(rows: dict[str, dict]) -> str:
     """The paper's table: one row per model, the paper's columns plus PC RMSE."""
     lines = ["| model | " + " | ".join(HEADERS) + " |", "|---" * (len(HEADERS) + 1) + "|"]
     for label, m in rows.items():
-        lines.append(f"| {label} | " + " | ".join(_fmt(m.get(k)) for k in COLUMNS) + " |")
+        lines.append(f"| {label} | " + " | ".join(_fmt(m.get(k)) for k in METRIC_KEYS) + " |")
     return "\n".join(lines)
 
 
 def beats(ours: dict, reference: dict) -> dict[str, bool]:
     """Per metric, whether ours is strictly better than the reference."""
-    return {k: (ours[k] < reference[k]) if k in LOWER_IS_BETTER else (ours[k] > reference[k]) for k in METRIC_NAMES}
+    return {k: (ours[k] < reference[k]) if k in LOWER_IS_BETTER else (ours[k] > reference[k]) for k in PAPER_METRICS}
 
 
 def write_report(

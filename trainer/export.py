@@ -34,6 +34,7 @@ from contract.card import (
     publish,
 )
 from contract.codec import INPUT_ENCODING
+from contract.errors import UserError
 from contract.runtime import OnnxGenerator
 from trainer.checkpoint import load_graph
 from trainer.config import DataSource
@@ -139,7 +140,7 @@ def metrics_from_report(path: Path) -> Metrics:
 def _data_ref(source: DataSource, reader: FrameReader) -> DataRef:
     """The card's entry for one training source; a source without a licence cannot be published."""
     if not reader.licence:
-        raise ValueError(f"training source {source.root} has no licence: set 'licence' in its data entry")
+        raise UserError(f"training source {source.root} has no licence: set 'licence' in its data entry")
     return DataRef(
         name=describe(source), format=source.format, frames=source.frames or source.split, licence=reader.licence
     )
@@ -170,7 +171,8 @@ def export_and_publish(
     target = Path(registry) / name / version
     if target.exists():
         raise FileExistsError(f"{target} already exists: versions are immutable, publish a new one")
-    graph, config, state = load_graph(checkpoint, inference)
+    graph, weights = load_graph(checkpoint, inference)
+    config = weights.config
     readers = [open_source(s) for s in config.data.train]
     data = data or [_data_ref(source, reader) for source, reader in zip(config.data.train, readers, strict=True)]
     camera = readers[0][0].intrinsics
@@ -195,15 +197,15 @@ def export_and_publish(
             camera=Camera(**camera.as_dict()),
             training=Training(
                 data=data,
-                steps=state["step"],
-                duration_s=round(state["train_seconds"], 1),
-                hardware=state["hardware"],
+                steps=weights.step,
+                duration_s=round(weights.train_seconds, 1),
+                hardware=weights.hardware,
                 config=config.model_dump(mode="json", exclude={"inference"}),
                 fit=fit,
             ),
             metrics=metrics,
             trainer_commit=trainer_commit(),
             parity=parity,
-            derived_from=state.get("published"),
+            derived_from=weights.published,
         )
         return publish(registry, card, {ONNX_FILE: folder / ONNX_FILE, TORCHSCRIPT_FILE: folder / TORCHSCRIPT_FILE})

@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from contract.card import PAPER_METRICS
+from contract.errors import UserError
 from contract.geometry import Intrinsics, ray_factors
-
-METRIC_NAMES = ("rel", "rmse", "log10", "delta1", "delta2", "delta3")
 
 
 def valid_mask(gt: np.ndarray, min_m: float, max_m: float) -> np.ndarray:
@@ -75,8 +75,8 @@ class MetricAccumulator:
 
     def result(self) -> dict[str, float]:
         if not self.rows:
-            raise ValueError("no valid ground-truth pixels were seen")
-        mean = {k: float(np.mean([r[k] for r in self.rows])) for k in METRIC_NAMES}
+            raise UserError("no valid ground-truth pixels were seen")
+        mean = {k: float(np.mean([r[k] for r in self.rows])) for k in PAPER_METRICS}
         return {
             **mean,
             "pc_rmse_mean": float(np.mean(self.pc_rmse)),

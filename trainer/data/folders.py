@@ -21,6 +21,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from contract.errors import UserError
 from contract.geometry import Intrinsics
 from trainer.data.frames import Frame, check_pair, parse_frame_ranges, read_depth_png, read_rgb
 
@@ -54,18 +55,18 @@ def read_intrinsics_json(path: Path) -> CameraFile:
     try:
         data = json.loads(Path(path).read_text())
     except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: not JSON: {e}") from None
+        raise UserError(f"{path}: not JSON: {e}") from None
     if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a JSON object")
+        raise UserError(f"{path}: expected a JSON object")
     scale = data.get("depth_scale")
     if "intrinsic_matrix" in data:
         k = data["intrinsic_matrix"]
         if not (isinstance(k, list) and len(k) == 9):
-            raise ValueError(f"{path}: intrinsic_matrix must hold 9 numbers (a 3x3 matrix, column-major)")
+            raise UserError(f"{path}: intrinsic_matrix must hold 9 numbers (a 3x3 matrix, column-major)")
         return CameraFile(fx=float(k[0]), fy=float(k[4]), cx=float(k[6]), cy=float(k[7]), depth_scale=scale)
     if all(key in data for key in ("fx", "fy", "cx", "cy")):
         return CameraFile(*(float(data[key]) for key in ("fx", "fy", "cx", "cy")), depth_scale=scale)
-    raise ValueError(f"{path}: expected Open3D's intrinsic_matrix, or fx, fy, cx and cy")
+    raise UserError(f"{path}: expected Open3D's intrinsic_matrix, or fx, fy, cx and cy")
 
 
 @dataclass(frozen=True)
@@ -106,7 +107,7 @@ def find_pairs(root: Path, tolerance: float = PAIR_TOLERANCE) -> tuple[list[Pair
     root = Path(root)
     colours = colour_folder(root)
     if colours is None or not (root / DEPTH_FOLDER).is_dir():
-        raise ValueError(f"{root}: expected {'/, '.join(COLOUR_FOLDERS)}/ and {DEPTH_FOLDER}/ folders")
+        raise UserError(f"{root}: expected {'/, '.join(COLOUR_FOLDERS)}/ and {DEPTH_FOLDER}/ folders")
     colour_files = {p.stem: p for p in colours.iterdir() if p.suffix.lower() in COLOUR_SUFFIXES}
     depth_files = {p.stem: p for p in (root / DEPTH_FOLDER).iterdir() if p.suffix.lower() in DEPTH_SUFFIXES}
     timed = sorted((t, stem) for stem in depth_files if (t := _number(stem)) is not None)
@@ -141,12 +142,12 @@ def select_frames(names: list[str], spec: str) -> list[int]:
         if item.replace("-", "").isdigit():
             indices = parse_frame_ranges(item)
             if indices[-1] >= len(names):
-                raise ValueError(f"frames {item}: the recording has frames 0-{len(names) - 1}")
+                raise UserError(f"frames {item}: the recording has frames 0-{len(names) - 1}")
             chosen.update(indices)
         else:
             hits = [i for i, name in enumerate(names) if fnmatch.fnmatch(name, item)]
             if not hits:
-                raise ValueError(f"frames {item!r} match no frame name (names look like {names[0]!r})")
+                raise UserError(f"frames {item!r} match no frame name (names look like {names[0]!r})")
             chosen.update(hits)
     return sorted(chosen)
 
@@ -163,12 +164,12 @@ class FoldersReader:
         self.name, self.licence = self.root.name, ""
         pairs, _ = find_pairs(self.root)
         if not pairs:
-            raise ValueError(f"{self.root}: no colour image has a depth image")
+            raise UserError(f"{self.root}: no colour image has a depth image")
         own = self.root / INTRINSICS_FILE
         self.camera = (read_intrinsics_json(own) if own.is_file() else CameraFile()).merged(camera or CameraFile())
         missing = [key for key in ("fx", "fy", "cx", "cy") if getattr(self.camera, key) is None]
         if missing:
-            raise ValueError(f"{self.root}: no {INTRINSICS_FILE} and no camera given ({', '.join(missing)} missing)")
+            raise UserError(f"{self.root}: no {INTRINSICS_FILE} and no camera given ({', '.join(missing)} missing)")
         chosen = select_frames([p.name for p in pairs], frames) if frames else range(len(pairs))
         self.pairs = [pairs[i] for i in chosen]
 

@@ -9,6 +9,7 @@ from typing import Protocol
 import numpy as np
 from PIL import Image
 
+from contract.errors import UserError
 from contract.geometry import Intrinsics
 
 #: Raw depth values that mean "no reading" in Kinect-style 16-bit PNGs.
@@ -46,7 +47,7 @@ def read_depth_png(path: Path, units_per_metre: float) -> np.ndarray:
     with Image.open(path) as im:
         raw = np.asarray(im)
     if raw.ndim != 2 or raw.dtype not in (np.uint16, np.int32, np.uint8):
-        raise ValueError(f"{path}: expected a single-channel 16-bit depth PNG, got {raw.dtype} {raw.shape}")
+        raise UserError(f"{path}: expected a single-channel 16-bit depth PNG, got {raw.dtype} {raw.shape}")
     raw = raw.astype(np.int64)
     depth = (raw / units_per_metre).astype(np.float32)
     depth[np.isin(raw, MISSING_RAW)] = 0.0
@@ -55,9 +56,7 @@ def read_depth_png(path: Path, units_per_metre: float) -> np.ndarray:
 
 def check_pair(rgb: np.ndarray, depth: np.ndarray, where: str) -> None:
     if rgb.shape[:2] != depth.shape:
-        raise ValueError(
-            f"{where}: RGB is {rgb.shape[1]}x{rgb.shape[0]} but depth is {depth.shape[1]}x{depth.shape[0]}"
-        )
+        raise UserError(f"{where}: RGB is {rgb.shape[1]}x{rgb.shape[0]} but depth is {depth.shape[1]}x{depth.shape[0]}")
 
 
 def parse_frame_ranges(text: str) -> list[int]:
@@ -71,10 +70,10 @@ def parse_frame_ranges(text: str) -> list[int]:
         try:
             start, end = int(lo), int(hi) if sep else int(lo)
         except ValueError as e:
-            raise ValueError(f"bad frame range {part!r} in {text!r}") from e
+            raise UserError(f"bad frame range {part!r} in {text!r}") from e
         if end < start:
-            raise ValueError(f"frame range {part!r} runs backwards")
+            raise UserError(f"frame range {part!r} runs backwards")
         numbers.update(range(start, end + 1))
     if not numbers:
-        raise ValueError(f"no frames in {text!r}")
+        raise UserError(f"no frames in {text!r}")
     return sorted(numbers)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
+from contract.errors import UserError
 from contract.geometry import Intrinsics
 from trainer.data.frames import Frame, check_pair, read_depth_png, read_rgb
 
@@ -29,18 +30,18 @@ class ManifestReader:
             reader = csv.DictReader(f)
             missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
             if missing:
-                raise ValueError(f"{self.path}: missing columns {missing}; expected {','.join(COLUMNS)}")
+                raise UserError(f"{self.path}: missing columns {missing}; expected {','.join(COLUMNS)}")
             self.rows = []
             for line, row in enumerate(reader, 2):
                 try:
                     numbers = {k: float(row[k]) for k in COLUMNS[2:]}
                 except (TypeError, ValueError) as e:
-                    raise ValueError(f"{self.path}:{line}: {e}") from e
+                    raise UserError(f"{self.path}:{line}: {e}") from e
                 if numbers["depth_scale"] <= 0 or numbers["fx"] <= 0 or numbers["fy"] <= 0:
-                    raise ValueError(f"{self.path}:{line}: depth_scale, fx and fy must be positive")
+                    raise UserError(f"{self.path}:{line}: depth_scale, fx and fy must be positive")
                 self.rows.append((row["rgb"], row["depth"], numbers))
         if not self.rows:
-            raise ValueError(f"{self.path}: no rows")
+            raise UserError(f"{self.path}: no rows")
 
     def __len__(self) -> int:
         return len(self.rows)

@@ -14,6 +14,7 @@ import h5py
 import numpy as np
 from scipy.io import loadmat
 
+from contract.errors import UserError
 from contract.geometry import Intrinsics
 from trainer.data.frames import Frame
 
@@ -26,7 +27,7 @@ def read_split(splits_file: Path, split: str) -> list[int]:
     key = {"train": "trainNdxs", "test": "testNdxs"}[split]
     table = loadmat(splits_file)
     if key not in table:
-        raise ValueError(f"{splits_file}: no {key!r} array")
+        raise UserError(f"{splits_file}: no {key!r} array")
     return [int(i) - 1 for i in np.asarray(table[key]).ravel()]
 
 
@@ -40,14 +41,14 @@ class NyuReader:
         with h5py.File(self.path, "r") as f:
             for key in ("images", "depths"):
                 if key not in f:
-                    raise ValueError(f"{self.path}: no {key!r} dataset")
+                    raise UserError(f"{self.path}: no {key!r} dataset")
             count = f["images"].shape[0]
         if split == "all":
             self.indices = list(range(count))
         else:
             self.indices = read_split(Path(splits_file or self.path.with_name("splits.mat")), split)
         if any(not 0 <= i < count for i in self.indices):
-            raise ValueError(f"{self.path}: split indices outside 1..{count}")
+            raise UserError(f"{self.path}: split indices outside 1..{count}")
         self._file: h5py.File | None = None  # opened lazily: h5py handles do not survive fork
 
     def __len__(self) -> int:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from contract.errors import UserError
 from contract.geometry import Intrinsics
 from trainer.data.frames import Frame, check_pair, parse_frame_ranges, read_depth_png, read_rgb
 
@@ -20,7 +21,7 @@ def read_intrinsics_txt(path: Path, width: int, height: int) -> Intrinsics:
     """A 3x3 camera matrix in plain text (7-Scenes' camera-intrinsics.txt)."""
     k = np.loadtxt(path, dtype=np.float64)
     if k.shape != (3, 3):
-        raise ValueError(f"{path}: expected a 3x3 camera matrix, got shape {k.shape}")
+        raise UserError(f"{path}: expected a 3x3 camera matrix, got shape {k.shape}")
     return Intrinsics(fx=k[0, 0], fy=k[1, 1], cx=k[0, 2], cy=k[1, 2], width=width, height=height)
 
 

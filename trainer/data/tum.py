@@ -5,6 +5,7 @@ from __future__ import annotations
 import bisect
 from pathlib import Path
 
+from contract.errors import UserError
 from contract.geometry import Intrinsics
 from trainer.data.frames import Frame, check_pair, read_depth_png, read_rgb
 
@@ -29,7 +30,7 @@ def read_file_list(path: Path) -> list[tuple[float, str]]:
             continue
         parts = line.replace(",", " ").split()
         if len(parts) < 2:
-            raise ValueError(f"{path}:{number}: expected 'timestamp filename', got {line!r}")
+            raise UserError(f"{path}:{number}: expected 'timestamp filename', got {line!r}")
         entries.append((float(parts[0]), parts[1]))
     return entries
 
@@ -80,7 +81,7 @@ class TumReader:
         depth = read_file_list(self.root / "depth.txt")
         pairs = associate([t for t, _ in rgb], [t for t, _ in depth])
         if not pairs:
-            raise ValueError(f"{self.root}: no rgb/depth pair within {MAX_DIFFERENCE_S * 1000:.0f} ms")
+            raise UserError(f"{self.root}: no rgb/depth pair within {MAX_DIFFERENCE_S * 1000:.0f} ms")
         self.pairs = [(rgb[i], depth[j]) for i, j in pairs]
         self.intrinsics = camera_for(self.root)
 

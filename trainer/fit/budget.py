@@ -13,17 +13,19 @@ from __future__ import annotations
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import torch
 
+from contract.errors import UserError
 from trainer.config import RunConfig
 from trainer.data.sources import open_source
 from trainer.data.transforms import resize_frame
 from trainer.devices import Distributed, pick_device
+from trainer.gan import Precision, build_networks, gan_step
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.losses import GANLoss
-from trainer.train import Precision, build_networks, gan_step, training_loader
+from trainer.train import training_loader
 
 #: Runs timed after one warm-up run; their median is the plan's figure.
 MEASURED_RUNS = 3
@@ -55,9 +57,6 @@ class Plan:
     checkpoint_every: int
     #: Seconds after the start of the command by which training must stop.
     deadline_s: float
-
-    def as_dict(self) -> dict:
-        return asdict(self)
 
     def line(self) -> str:
         return (
@@ -130,7 +129,7 @@ def plan_training(budget_s: float, spent_s: float, step_s: float, work: Workload
     train_s = budget_s - spent_s - work.tail_s() - work.validation_s()
     steps = int(train_s / step_s)
     if steps < 1:
-        raise ValueError(
+        raise UserError(
             f"the budget of {budget_s / 60:.1f} min leaves no time to train: {spent_s:.0f} s went to reading and "
             f"checking the data, {work.tail_s() + work.validation_s():.0f} s are needed to validate, score and "
             f"export, and one step takes {step_s:.1f} s; give a larger --budget"

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from contract.errors import UserError
 from contract.geometry import ColourCamera, Intrinsics
 from trainer.data.frames import Frame, check_pair, read_depth_png, read_rgb
 from trainer.data.transforms import resize_frame
@@ -87,7 +88,7 @@ def sample_frames(pairs: list[RecordedPair], count: int) -> list[Frame]:
 
 
 def inspect_recording(recording: Recording, sample: int = 12, registration: str = "auto") -> Inspection:
-    """Inspect a sample of frames; raise ValueError on units that cannot be right.
+    """Inspect a sample of frames; raise UserError on units that cannot be right.
 
     ``registration``: ``auto`` fits a colour camera and registers only if it aligns
     clearly better; ``yes`` always registers with the fit; ``no`` never checks.
@@ -96,12 +97,12 @@ def inspect_recording(recording: Recording, sample: int = 12, registration: str 
     depth = np.concatenate([f.depth.ravel() for f in frames])
     valid = depth[depth > 0]
     if valid.size == 0:
-        raise ValueError(f"{recording.root}: the sampled depth images hold no readings at all")
+        raise UserError(f"{recording.root}: the sampled depth images hold no readings at all")
     median = float(np.median(valid))
     scale = recording.pairs[0].depth_scale
     if not PLAUSIBLE_MEDIAN_M[0] <= median <= PLAUSIBLE_MEDIAN_M[1]:
         likely = min(COMMON_DEPTH_SCALES, key=lambda s: abs(math.log(median * scale / s / 2.0)))
-        raise ValueError(
+        raise UserError(
             f"{recording.root}: the median depth is {median:.3g} m with depth_scale {scale:g} units per metre, "
             f"not a room's {PLAUSIBLE_MEDIAN_M[0]}-{PLAUSIBLE_MEDIAN_M[1]} m; the units are likely "
             f"--depth-scale {likely:g} (median {median * scale / likely:.2f} m)"

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from contract.errors import UserError
 from trainer.data.folders import CameraFile, find_pairs, is_folders_layout, read_intrinsics_json
 from trainer.data.manifest import COLUMNS, ManifestReader
 from trainer.data.nyu import NyuReader
@@ -52,13 +53,13 @@ def detect_format(root: Path) -> str:
     """The layout of ``root``, or a ValueError that says what was found and what was expected."""
     root = Path(root)
     if not root.exists():
-        raise ValueError(f"{root}: no such file or folder")
+        raise UserError(f"{root}: no such file or folder")
     if root.is_file():
         if root.suffix == ".csv":
             return "csv"
         if root.suffix == ".mat":
             return "nyu"
-        raise ValueError(f"{root}: a file, but not a .csv manifest or an NYU .mat")
+        raise UserError(f"{root}: a file, but not a .csv manifest or an NYU .mat")
     if is_folders_layout(root):
         return "folders"
     if (root / "rgb.txt").is_file() and (root / "depth.txt").is_file():
@@ -66,7 +67,7 @@ def detect_format(root: Path) -> str:
     if any(root.glob("frame-*.color.*")):
         return "7scenes"
     found = sorted(p.name + ("/" if p.is_dir() else "") for p in root.iterdir())[:8]
-    raise ValueError(
+    raise UserError(
         f"{root}: cannot tell its layout (found {', '.join(found) or 'nothing'}); expected color/ (or rgb/, "
         "image/) and depth/ folders, a TUM sequence (rgb.txt, depth.txt), 7-Scenes frame-NNNNNN.color.jpg "
         "files, a .csv manifest or an NYU .mat; or pass --format"
@@ -81,7 +82,7 @@ def open_recording(root: Path, format: str | None, camera: CameraFile, scratch: 
     root = Path(root)
     format = format or detect_format(root)
     if format not in FORMATS:
-        raise ValueError(f"--format {format!r}: expected one of {', '.join(FORMATS)}")
+        raise UserError(f"--format {format!r}: expected one of {', '.join(FORMATS)}")
     if format == "folders":
         return _folders(root, camera)
     if format == "csv":
@@ -113,7 +114,7 @@ def open_recording(root: Path, format: str | None, camera: CameraFile, scratch: 
 def _pair(name: str, rgb: Path, depth: Path, camera: CameraFile, root: Path) -> RecordedPair:
     missing = [key for key in ("fx", "fy", "cx", "cy") if getattr(camera, key) is None]
     if missing:
-        raise ValueError(
+        raise UserError(
             f"{root}: no camera intrinsics ({', '.join(missing)} missing): add an intrinsics.json "
             "(Open3D's PinholeCameraIntrinsic, or fx, fy, cx, cy) or pass --fx --fy --cx --cy"
         )
@@ -124,7 +125,7 @@ def _pair(name: str, rgb: Path, depth: Path, camera: CameraFile, root: Path) -> 
 def _folders(root: Path, camera: CameraFile) -> Recording:
     pairs, skipped = find_pairs(root)
     if not pairs:
-        raise ValueError(f"{root}: no colour image has a depth image ({len(skipped)} colour images, none paired)")
+        raise UserError(f"{root}: no colour image has a depth image ({len(skipped)} colour images, none paired)")
     intrinsics = root / "intrinsics.json"
     own = read_intrinsics_json(intrinsics).merged(camera) if intrinsics.is_file() else camera
     return Recording(root, "folders", [_pair(p.name, p.rgb, p.depth, own, root) for p in pairs], skipped, None)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from contract.errors import UserError
 from trainer.data.folders import select_frames
 from trainer.fit.recording import RecordedPair
 
@@ -47,16 +48,16 @@ class Split:
 
 
 def split_recording(pairs: list[RecordedPair], holdout: str | None = None, gap_frames: int | None = None) -> Split:
-    """The default time-order split, or the one ``holdout`` names; raise ValueError if too small."""
+    """The default time-order split, or the one ``holdout`` names; raise UserError if too small."""
     n = len(pairs)
     if n < MIN_PAIRS:
-        raise ValueError(f"{n} usable pairs; fit needs at least {MIN_PAIRS} (record a little longer)")
+        raise UserError(f"{n} usable pairs; fit needs at least {MIN_PAIRS} (record a little longer)")
     gap = round(GAP_SHARE * n) if gap_frames is None else gap_frames
     if holdout:
         try:
             held = select_frames([p.name for p in pairs], holdout)
         except ValueError as e:
-            raise ValueError(f"--holdout: {e}") from None
+            raise UserError(f"--holdout: {e}") from None
         near = {j for i in held for j in range(i - gap, i + gap + 1) if 0 <= j < n} - set(held)
         rest = [i for i in range(n) if i not in near and i not in set(held)]
         gap_indices = sorted(near)
@@ -68,7 +69,7 @@ def split_recording(pairs: list[RecordedPair], holdout: str | None = None, gap_f
     selection_count = max(1, round(SELECTION_SHARE * len(rest)))
     split = Split(rest[:-selection_count], rest[-selection_count:], gap_indices, held)
     if len(split.train) < MIN_PAIRS // 2 or not split.holdout:
-        raise ValueError(
+        raise UserError(
             f"{split.line()}: too few frames to train on or to score; fit needs at least {MIN_PAIRS // 2} train "
             f"frames and one held-out frame"
         )

@@ -7,7 +7,6 @@ continues the same plan from the last checkpoint instead of starting over.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import time
@@ -16,10 +15,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pydantic import BaseModel, Field
 from tqdm import tqdm
 
 from contract.card import DataRef, FitRecord, list_versions, load_card, next_version
+from contract.errors import UserError
 from contract.geometry import ColourCamera
+from contract.spec import GeneratorSpec
 from trainer.config import DataSource, RunConfig, migrate_config
 from trainer.data.folders import CameraFile
 from trainer.data.manifest import ManifestReader
@@ -29,8 +31,9 @@ from trainer.fit.recording import Recording, open_recording, write_manifest
 from trainer.fit.scoring import score_holdout
 from trainer.fit.split import Split, split_recording
 
-#: The registry shipped with rgb2cloud; ``--from`` defaults to its newest base model.
-BUNDLED_REGISTRY = Path(__file__).resolve().parents[2] / "weights"
+#: Where the bundled registry is: the checkout's ``weights/``, unless this environment variable names another.
+BUNDLED_REGISTRY_VARIABLE = "RGB2CLOUD_BUNDLED_REGISTRY"
+#: ``--from`` defaults to the newest version of this model in the bundled registry.
 BASE_MODEL = "rgb2cloud-7scenes"
 #: The service shrinks photos above this many pixels for the generator; fit trains at the same scale.
 SERVICE_PIXELS = 640 * 480
@@ -42,7 +45,7 @@ class FitOptions:
     name: str
     licence: str
     budget_min: float = 30.0
-    start: str | None = None  # a published version folder, "scratch", or None for the bundled base model
+    start_from: str | None = None  # a published version folder, "scratch", or None for the bundled base model
     registry: Path = Path("weights")
     format: str | None = None
     camera: CameraFile = field(default_factory=CameraFile)
@@ -57,11 +60,38 @@ class FitOptions:
         return self.out or Path("runs") / "fit" / self.name
 
 
+class FitState(BaseModel):
+    """Everything a fit decides before training, saved as ``fit.json``: what ``--resume`` continues."""
+
+    report: list[str]
+    data: str
+    format: str
+    licence: str
+    start_from: str = Field(description="the published version folder training starts from, or 'scratch'")
+    split: dict[str, dict[str, Any]] = Field(description="Split.summary: each part's frames, first and last")
+    colour_camera: ColourCamera | None
+    plan: Plan
+    config: RunConfig
+
+    @property
+    def start(self) -> Path | None:
+        return None if self.start_from == "scratch" else Path(self.start_from)
+
+
+def bundled_registry() -> Path:
+    """The registry shipped with rgb2cloud: ``$RGB2CLOUD_BUNDLED_REGISTRY``, else the checkout's ``weights/``."""
+    return Path(os.environ.get(BUNDLED_REGISTRY_VARIABLE) or Path(__file__).resolve().parents[2] / "weights")
+
+
 def default_start() -> Path:
-    versions = list_versions(BUNDLED_REGISTRY, BASE_MODEL)
+    """The newest bundled base model, where ``--from`` is not given."""
+    registry = bundled_registry()
+    versions = list_versions(registry, BASE_MODEL)
     if not versions:
-        raise ValueError(f"{BUNDLED_REGISTRY}: no bundled {BASE_MODEL} to start from; pass --from")
-    return BUNDLED_REGISTRY / BASE_MODEL / versions[-1]
+        raise UserError(
+            f"{registry}: no bundled {BASE_MODEL} to start from; pass --from, or set {BUNDLED_REGISTRY_VARIABLE}"
+        )
+    return registry / BASE_MODEL / versions[-1]
 
 
 def start_config(start: Path) -> dict[str, Any]:
@@ -105,26 +135,26 @@ def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
     run = options.run_dir
     state_file = run / "fit.json"
     if options.resume and not state_file.is_file():
-        raise ValueError(f"{run}: nothing to resume (no fit.json); run without --resume")
+        raise UserError(f"{run}: nothing to resume (no fit.json); run without --resume")
     if not options.resume and state_file.exists():
-        raise ValueError(f"{run}: a fit is already there; add --resume to continue it, or pass --out elsewhere")
+        raise UserError(f"{run}: a fit is already there; add --resume to continue it, or pass --out elsewhere")
     if not options.licence.strip():
-        raise ValueError("--licence is required: the terms under which the recording may be used")
+        raise UserError("--licence is required: the terms under which the recording may be used")
     progress = Progress(options.budget_min * 60, started)
     try:
         if options.resume:
-            state = json.loads(state_file.read_text())
-            for line in state["report"]:
+            state = FitState.model_validate_json(state_file.read_text())
+            for line in state.report:
                 progress.say(line)
         else:
             state = _prepare(options, run, progress, started)
-            state_file.write_text(json.dumps(state, indent=2) + "\n")
+            state_file.write_text(state.model_dump_json(indent=2) + "\n")
         return _train_score_publish(options, state, progress, echo)
     finally:
         progress.close()
 
 
-def _prepare(options: FitOptions, run: Path, progress: Progress, started: float) -> dict[str, Any]:
+def _prepare(options: FitOptions, run: Path, progress: Progress, started: float) -> FitState:
     """Everything decided before training: the data checked and split, the config, the plan."""
     recording = open_recording(options.data, options.format, options.camera, run)
     progress.phase("inspecting")
@@ -133,29 +163,33 @@ def _prepare(options: FitOptions, run: Path, progress: Progress, started: float)
     report = [f"{recording.root} ({recording.format})", *inspection.lines(), split.line()]
     for line in report:
         progress.say(line)
-    start = None if options.start == "scratch" else Path(options.start) if options.start else default_start()
+    start = options.start_from
+    start = None if start == "scratch" else Path(start) if start else default_start()
     config = _run_config(options, recording, split, inspection.colour_camera, start, run)
     progress.phase("measuring")
-    step_s, predict_s = measure_seconds(RunConfig.model_validate(config))
-    inference = RunConfig.model_validate(config).inference
-    taps = (2 * inference.median_radius + 1) ** 2 if inference.median_radius else 0
+    step_s, predict_s = measure_seconds(config)
+    radius = config.inference.median_radius
+    taps = (2 * radius + 1) ** 2 if radius else 0
     work = Workload(len(split.selection), len(split.holdout), predict_s, start is not None, taps)
     plan = plan_training(options.budget_min * 60, time.monotonic() - started, step_s, work)
     progress.say(plan.line())
-    train = config["train"]
-    train.update(steps=plan.steps, val_every=plan.val_every, checkpoint_every=plan.checkpoint_every)
-    config["optim"].update(decay_start=plan.decay_start, decay_steps=plan.steps - plan.decay_start)
-    return {
-        "report": [*report, plan.line()],
-        "data": str(options.data),
-        "format": recording.format,
-        "licence": options.licence,
-        "start": str(start) if start else "scratch",
-        "split": split.summary(recording.pairs),
-        "colour_camera": inspection.colour_camera.model_dump() if inspection.colour_camera else None,
-        "plan": plan.as_dict(),
-        "config": config,
-    }
+    config.train = config.train.model_copy(
+        update={"steps": plan.steps, "val_every": plan.val_every, "checkpoint_every": plan.checkpoint_every}
+    )
+    config.optim = config.optim.model_copy(
+        update={"decay_start": plan.decay_start, "decay_steps": plan.steps - plan.decay_start}
+    )
+    return FitState(
+        report=[*report, plan.line()],
+        data=str(options.data),
+        format=recording.format,
+        licence=options.licence,
+        start_from=str(start) if start else "scratch",
+        split=split.summary(recording.pairs),
+        colour_camera=inspection.colour_camera,
+        plan=plan,
+        config=config,
+    )
 
 
 def _run_config(
@@ -165,7 +199,7 @@ def _run_config(
     colour: ColourCamera | None,
     start: Path | None,
     run: Path,
-) -> dict[str, Any]:
+) -> RunConfig:
     """The starting model's recipe on this recording's split, at the scale the service will see it."""
     tree = start_config(start or default_start())
     pairs = recording.pairs
@@ -176,8 +210,8 @@ def _run_config(
     source = {"format": "csv", "licence": options.licence, "colour_camera": colour.model_dump() if colour else None}
     height, width = read_pair(pairs[0]).depth.shape
     scale = min(1.0, math.sqrt(SERVICE_PIXELS / (height * width)))  # what the service shrinks this camera's photos to
-    spec = tree["generator"]
-    work, multiple = spec["work_scale"], 2 ** spec["n_downsample"]
+    spec = GeneratorSpec.model_validate(tree["generator"])
+    work, multiple = spec.work_scale, spec.core_multiple
     size = [int(height * scale / work) // multiple * multiple, int(width * scale / work) // multiple * multiple]
     tree["data"] = {
         "train": [{**source, "root": str(manifests["train"])}],
@@ -198,33 +232,30 @@ def _run_config(
         "threads": os.cpu_count(),
         "log_every": 10,
         "select_metric": "rel",
-        "init_from": str(start) if start else None,
+        "start_from": str(start) if start else None,
     }
-    return RunConfig.model_validate(tree).model_dump(mode="json")
+    return RunConfig.model_validate(tree)
 
 
-def _train_score_publish(options: FitOptions, state: dict[str, Any], progress: Progress, echo) -> Path:
+def _train_score_publish(options: FitOptions, state: FitState, progress: Progress, echo) -> Path:
     from trainer.export import export_and_publish
     from trainer.train import train
 
-    config = RunConfig.model_validate(state["config"])
-    plan = Plan(**state["plan"])
+    config, plan = state.config, state.plan
     progress.phase("training")
     deadline = progress.started + plan.deadline_s
     if options.resume:  # a fresh stretch of the budget for what is left: at most the whole training time
         deadline = time.monotonic() + plan.train_s
         done = _checkpoint_step(Path(config.train.out_dir) / "checkpoints" / "last.pt")
         progress.say(f"resuming at step {done} of {plan.steps}")
-    summary = train(config, resume=options.resume, progress=progress.tick, deadline=deadline)
-    progress.say(f"trained {summary['steps']} steps in {summary['train_seconds'] / 60:.1f} min")
+    summary = train(config, resume=options.resume, report=progress.tick, deadline=deadline)
+    progress.say(f"trained {summary.steps} steps in {summary.train_seconds / 60:.1f} min")
 
     progress.phase("scoring")
     checkpoints = Path(config.train.out_dir) / "checkpoints"
     checkpoint = checkpoints / "best.pt" if (checkpoints / "best.pt").is_file() else checkpoints / "last.pt"
-    colour = ColourCamera.model_validate(state["colour_camera"]) if state["colour_camera"] else None
-    start = None if state["start"] == "scratch" else Path(state["start"])
     holdout = DataSource(format="csv", root=options.run_dir / "holdout.csv")
-    table, metrics, warning = score_holdout(checkpoint, start, config, holdout, colour)
+    table, metrics, warning = score_holdout(checkpoint, state.start, config, holdout, state.colour_camera)
     progress.say(table)
     if warning:
         progress.say(warning)
@@ -232,18 +263,14 @@ def _train_score_publish(options: FitOptions, state: dict[str, Any], progress: P
     progress.phase("publishing")
     version = next_version(options.registry, options.name)
     record = FitRecord(
-        data=state["data"],
-        started_from=state["start"],
+        data=state.data,
+        start_from=state.start_from,
         budget_min=options.budget_min,
-        split=state["split"],
-        registered_with=colour,
+        split=state.split,
+        registered_with=state.colour_camera,
     )
-    frames = sum(part["frames"] for part in state["split"].values())
-    data = [
-        DataRef(
-            name=Path(state["data"]).name, format=state["format"], frames=f"{frames} pairs", licence=state["licence"]
-        )
-    ]
+    frames = sum(part["frames"] for part in state.split.values())
+    data = [DataRef(name=Path(state.data).name, format=state.format, frames=f"{frames} pairs", licence=state.licence)]
     parity_image = Path(ManifestReader(holdout.root).rows[0][0])  # the manifest holds absolute paths
     target = export_and_publish(
         checkpoint, options.registry, options.name, version, metrics, parity_image, data=data, fit=record
@@ -258,8 +285,8 @@ def _checkpoint_step(path: Path) -> int:
     from trainer.checkpoint import load_checkpoint
 
     if not path.is_file():
-        raise ValueError(f"{path}: no checkpoint to resume from yet; run the fit again without --resume")
-    return load_checkpoint(path)["step"]
+        raise UserError(f"{path}: no checkpoint to resume from yet; run the fit again without --resume")
+    return load_checkpoint(path).step
 
 
 def _serve_lines(registry: Path, name: str, version: str) -> list[str]:

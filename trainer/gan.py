@@ -1,0 +1,116 @@
+"""pix2pixHD's adversarial update: the networks as initialised, and one G step and one D step.
+
+Order of one step, as pix2pixHD: G is updated against the current D (cGAN +
+mu * feature matching, + optional masked L1), then D against the same fake
+batch. Each D forward is followed by exactly one backward, with the fake and
+real halves in one batch, which keeps DistributedDataParallel's gradient
+hooks simple.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from trainer.config import LossConfig, RunConfig
+from trainer.losses import GANLoss, feature_matching, fill_holes, masked_l1, patch_weights
+from trainer.networks import GlobalGenerator, MultiscaleDiscriminator
+
+
+def init_weights(module: nn.Module) -> None:
+    """pix2pixHD's initialisation: conv weights ~ N(0, 0.02), biases 0."""
+    if isinstance(module, nn.Conv2d | nn.ConvTranspose2d):
+        nn.init.normal_(module.weight, 0.0, 0.02)
+        if module.bias is not None:
+            nn.init.zeros_(module.bias)
+
+
+def _split(outputs: list[list[torch.Tensor]], n: int) -> tuple[list[list[torch.Tensor]], list[list[torch.Tensor]]]:
+    """Split D's outputs for a [fake; real] batch into the fake and the real halves."""
+    fake = [[t[:n] for t in scale] for scale in outputs]
+    real = [[t[n:] for t in scale] for scale in outputs]
+    return fake, real
+
+
+@dataclass(frozen=True)
+class Precision:
+    """Mixed precision on CUDA (bf16 where supported, else fp16 with a gradient scaler); fp32 elsewhere."""
+
+    enabled: bool
+    dtype: torch.dtype
+
+    @property
+    def scaled(self) -> bool:
+        """fp16 gradients need a scaler against underflow; bf16 and fp32 do not."""
+        return self.enabled and self.dtype == torch.float16
+
+    @classmethod
+    def for_device(cls, device: torch.device, wanted: bool) -> Precision:
+        enabled = wanted and device.type == "cuda"
+        return cls(enabled, torch.bfloat16 if enabled and torch.cuda.is_bf16_supported() else torch.float16)
+
+
+def build_networks(
+    config: RunConfig, device: torch.device
+) -> tuple[GlobalGenerator, MultiscaleDiscriminator, torch.optim.Adam, torch.optim.Adam]:
+    """G and D with pix2pixHD's initialisation, seeded so every rank starts identical, and their Adams."""
+    torch.manual_seed(config.train.seed)
+    generator = GlobalGenerator(config.generator)
+    discriminator = MultiscaleDiscriminator(
+        config.discriminator, config.generator.input_nc + config.generator.output_nc
+    )
+    generator.apply(init_weights)
+    discriminator.apply(init_weights)
+    generator.to(device)
+    discriminator.to(device)
+    betas = (config.optim.beta1, config.optim.beta2)
+    opt_g = torch.optim.Adam(generator.parameters(), lr=config.optim.lr, betas=betas)
+    opt_d = torch.optim.Adam(discriminator.parameters(), lr=config.optim.lr, betas=betas)
+    return generator, discriminator, opt_g, opt_d
+
+
+def gan_step(
+    generator: nn.Module,
+    discriminator: nn.Module,
+    optimisers: tuple[torch.optim.Optimizer, torch.optim.Optimizer],
+    scaler: torch.amp.GradScaler,
+    gan_loss: GANLoss,
+    loss: LossConfig,
+    batch: dict[str, torch.Tensor],
+    amp: Precision,
+) -> dict[str, torch.Tensor]:
+    """One pix2pixHD update: G against the current D, then D against the same fake batch; the losses."""
+    opt_g, opt_d = optimisers
+    x, real, valid = batch["rgb"], batch["depth"], batch["valid"]
+    n = x.shape[0]
+    device_type = x.device.type
+    # Generator: fool D and match its features on real pairs.
+    with torch.autocast(device_type, dtype=amp.dtype, enabled=amp.enabled):
+        fake = generator(x)
+        real_filled = fill_holes(real, fake, valid)
+        pairs = torch.cat([torch.cat([x, fake], 1), torch.cat([x, real_filled], 1)], 0)
+        pred_fake, pred_real = _split(discriminator(pairs), n)
+        weights = patch_weights(valid, pred_real)
+        losses = {"G_gan": gan_loss(pred_fake, True), "G_fm": feature_matching(pred_fake, pred_real, weights)}
+        loss_g = losses["G_gan"] + loss.feature_matching * losses["G_fm"]
+        if loss.l1_depth > 0:
+            losses["G_l1"] = masked_l1(fake, real, valid)
+            loss_g = loss_g + loss.l1_depth * losses["G_l1"]
+    opt_g.zero_grad(set_to_none=True)
+    scaler.scale(loss_g).backward()
+    scaler.step(opt_g)
+
+    # Discriminator: the same fake batch (detached) against real pairs with holes filled.
+    with torch.autocast(device_type, dtype=amp.dtype, enabled=amp.enabled):
+        pairs = torch.cat([torch.cat([x, fake.detach()], 1), torch.cat([x, real_filled], 1)], 0)
+        pred_fake, pred_real = _split(discriminator(pairs), n)
+        losses["D_fake"] = gan_loss(pred_fake, False)
+        losses["D_real"] = gan_loss(pred_real, True, weights)  # the same cells as in the G step
+        loss_d = 0.5 * (losses["D_fake"] + losses["D_real"])
+    opt_d.zero_grad(set_to_none=True)
+    scaler.scale(loss_d).backward()
+    scaler.step(opt_d)
+    scaler.update()
+    return losses
