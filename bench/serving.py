@@ -21,6 +21,7 @@ import tempfile
 import time
 import zlib
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
@@ -30,16 +31,15 @@ from isal import isal_zlib
 from PIL import Image
 
 from app.catalog import ModelCatalog
-from app.client import server_timing
 from app.imaging import PNG_COMPRESS_LEVEL, decode_image, depth_png_rows, encode_depth_png
 from app.loading import LoadedModel
 from app.ply import encode_ply
-from app.process import resident_mb, running_service
 from app.settings import Settings
-from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, list_versions
+from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, ModelCard, list_versions
 from contract.codec import rgb_to_input
 from contract.geometry import Intrinsics, pad_to_multiple, point_cloud
 from contract.runtime import OnnxGenerator
+from harness.service import resident_mb, running_service, server_timing
 from trainer.machine import cpu_description
 
 REPO = Path(__file__).resolve().parents[1]
@@ -104,12 +104,205 @@ def _version_times(folder: Path, x: np.ndarray, threads: int, repeats: int) -> d
         return times
     torch.set_num_threads(threads)
     scripted = torch.jit.load(str(folder / TORCHSCRIPT_FILE)).eval()
-    eager, _, _ = load_graph(folder)  # the same weights and inference settings, eagerly
+    eager, _ = load_graph(folder)  # the same weights and inference settings, eagerly
     xt = torch.from_numpy(x)
     with torch.inference_mode():
         times["TorchScript"] = median_ms(lambda: scripted(xt), repeats)
         times["eager PyTorch"] = median_ms(lambda: eager(xt), repeats)
     return times
+
+
+@dataclass
+class Photo:
+    """The benchmark's one photo, everything the stages need of it, and the model it runs on."""
+
+    data: bytes
+    rgb: np.ndarray
+    x: np.ndarray
+    depth: np.ndarray
+    camera: Intrinsics
+    model: LoadedModel
+
+    @classmethod
+    def load(cls, path: Path, model: LoadedModel, max_pixels: int) -> Photo:
+        data = path.read_bytes()
+        rgb = decode_image(data, max_pixels).rgb
+        h, w = rgb.shape[:2]
+        c = model.card.camera
+        camera = Intrinsics(c.fx, c.fy, c.cx, c.cy, c.width, c.height).resized(w, h)
+        x = rgb_to_input(pad_to_multiple(rgb, model.card.input_multiple))
+        return cls(data, rgb, x, model.predict_depth(rgb), camera, model)
+
+    def generator_ms(self, repeats: int) -> float:
+        session, name = self.model.generator.session, self.model.generator.input_name
+        return median_ms(lambda: session.run(None, {name: self.x}), repeats)
+
+
+def stage_times(photo: Photo, max_pixels: int, r: int) -> dict[str, float]:
+    """Each stage of a request, in process, median ms."""
+    rgb, depth, k, card = photo.rgb, photo.depth, photo.camera, photo.model.card
+    h, w = rgb.shape[:2]
+    points = point_cloud(depth, rgb, k)
+    return {
+        "decode (JPEG -> RGB)": median_ms(lambda: decode_image(photo.data, max_pixels), r),
+        "fit to grid (pad + normalise)": median_ms(lambda: rgb_to_input(pad_to_multiple(rgb, card.input_multiple)), r),
+        "generator (ONNX Runtime)": photo.generator_ms(r),
+        "depth decode (tanh -> metres)": median_ms(lambda: card.depth_encoding.decode(photo.x[0, 0, :h, :w]), r),
+        "depth PNG encode": median_ms(lambda: encode_depth_png(depth), r),
+        "back-projection": median_ms(lambda: point_cloud(depth, rgb, k), r),
+        "PLY encode": median_ms(lambda: encode_ply(points), r),
+    }
+
+
+def request_shares(client: httpx.Client, url: str, route: str, files: dict, r: int) -> dict[str, float]:
+    """One request at a time: the server's stages (``Server-Timing``) and the rest of the client's wall clock."""
+    rows = []
+    for _ in range(r + 1):
+        start = time.perf_counter()
+        response = client.post(f"{url}{route}", files=files)
+        total = (time.perf_counter() - start) * 1000
+        rows.append({"total": total, **server_timing(response)})
+    rows = rows[1:]  # the first request warms the connection
+    shares = {name: statistics.median(row[name] for row in rows) for name in rows[0] if name != "total"}
+    shares["HTTP, multipart and framework (total - server stages)"] = statistics.median(
+        row["total"] - sum(v for k, v in row.items() if k != "total") for row in rows
+    )
+    shares["outside the model call"] = statistics.median(row["total"] - row["inference"] for row in rows)
+    shares["total"] = statistics.median(row["total"] for row in rows)
+    return shares
+
+
+def concurrency(url: str, photo: Photo, r: int) -> dict[int, tuple[float, int, int, float]]:
+    """/depth under 1-8 concurrent clients: (images/s, errors, requests, the generator's rate alone)."""
+    files = {"image": ("photo.jpg", photo.data)}
+    per_client = max(2, r // 2)
+
+    def one_client(_: int) -> list[int]:
+        with httpx.Client(timeout=120) as own:
+            return [own.post(f"{url}/depth", files=files).status_code for _ in range(per_client)]
+
+    throughput = {}
+    for clients in (1, 2, 4, 8):
+        # The generator's own rate is re-measured right before each level: on a shared,
+        # noisy machine a rate taken minutes earlier is not a fair yardstick.
+        alone = 1000 / photo.generator_ms(max(5, r // 2))
+        start = time.perf_counter()
+        with ThreadPoolExecutor(clients) as pool:
+            statuses = [s for batch in pool.map(one_client, range(clients)) for s in batch]
+        elapsed = time.perf_counter() - start
+        throughput[clients] = (len(statuses) / elapsed, sum(s != 200 for s in statuses), len(statuses), alone)
+    return throughput
+
+
+@dataclass
+class HttpFigures:
+    """What the benchmark measures through a running service."""
+
+    totals: dict[str, float]
+    shares: dict[str, dict[str, float]]
+    throughput: dict[int, tuple[float, int, int, float]]
+    rss_mb: tuple[float, float]
+
+
+def http_figures(args: argparse.Namespace, photo: Photo) -> HttpFigures:
+    """Requests one at a time (each route, each version), then concurrent clients, through one service."""
+    card, r = photo.model.card, args.repeats
+    files = {"image": ("photo.jpg", photo.data)}
+    with running_service(registry=str(args.registry), threads=str(args.threads), model=args.model) as service:
+        client = httpx.Client(timeout=60)
+        shares = {route: request_shares(client, service.url, route, files, r) for route in ("/depth", "/pointcloud")}
+        totals = {f"HTTP total {route}": split["total"] for route, split in shares.items()}
+        for version in list_versions(args.registry, card.name):  # each version through the same service
+            ask = partial(client.post, f"{service.url}/depth", params={"model": f"{card.name}:{version}"}, files=files)
+            totals[f"HTTP total /depth?model={card.name}:{version}"] = median_ms(ask, r)
+        rss_before = resident_mb(service.pid)
+        throughput = concurrency(service.url, photo, r)
+        rss_after = resident_mb(service.pid)
+    return HttpFigures(totals, shares, throughput, (rss_before, rss_after))
+
+
+def ply_times(photo: Photo, r: int) -> tuple[float, float | None]:
+    """Back-projection and a binary PLY on disk: ours, and Open3D's where it is installed (else None)."""
+    rgb, depth, k = photo.rgb, photo.depth, photo.camera
+    h, w = rgb.shape[:2]
+    with tempfile.TemporaryDirectory() as tmp:
+        ours = median_ms(lambda: Path(tmp, "ours.ply").write_bytes(encode_ply(point_cloud(depth, rgb, k))), r)
+        try:
+            import open3d as o3d
+        except ImportError:
+            return ours, None
+        colour_image = o3d.geometry.Image(np.ascontiguousarray(rgb))
+        depth_image = o3d.geometry.Image(np.ascontiguousarray(depth))
+        intrinsic = o3d.camera.PinholeCameraIntrinsic(w, h, k.fx, k.fy, k.cx, k.cy)
+
+        def open3d_cloud() -> None:
+            rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
+                colour_image, depth_image, depth_scale=1.0, depth_trunc=1000.0, convert_rgb_to_intensity=False
+            )
+            cloud = o3d.geometry.PointCloud.create_from_rgbd_image(rgbd, intrinsic)
+            o3d.io.write_point_cloud(str(Path(tmp, "open3d.ply")), cloud, write_ascii=False)
+
+        return ours, median_ms(open3d_cloud, r)
+
+
+def stage_table(stages: dict[str, float]) -> str:
+    return "| stage | median ms |\n|---|---|\n" + "".join(f"| {stage} | {ms:.1f} |\n" for stage, ms in stages.items())
+
+
+def share_tables(shares: dict[str, dict[str, float]]) -> str:
+    out = (
+        "\nOne request at a time, split by the service's `Server-Timing` header (server stages; `inference` is "
+        "the model call: fit to grid + generator + decode to metres) and the client's wall clock:\n"
+    )
+    for route, split in shares.items():
+        out += f"\n| {route} | median ms | share of total |\n|---|---|---|\n"
+        for name, ms in split.items():
+            label = f"**{name}**" if name == "outside the model call" else name
+            out += f"| {label} | {ms:.1f} | {ms / split['total']:.0%} |\n"
+    return out
+
+
+def png_table(encoders: dict[str, tuple[float, int]], w: int, h: int) -> str:
+    out = f"\n| depth PNG, {w}x{h}, compression level {PNG_COMPRESS_LEVEL} | median ms | KB |\n|---|---|---|\n"
+    return out + "".join(f"| {label} | {ms:.1f} | {size / 1000:.0f} |\n" for label, (ms, size) in encoders.items())
+
+
+def backend_table(backends: dict[str, float], card: ModelCard) -> str:
+    fastest = min(backends.values())
+    default = f"{card.version}, ONNX Runtime"
+    out = (
+        f"\nThe default path (**bold**: {card.name} {card.version} on ONNX Runtime, what `make serve` runs) against "
+        "every version and backend, the generator call alone:\n"
+        "\n| version, backend | median ms | vs the fastest |\n|---|---|---|\n"
+    )
+    for backend, ms in backends.items():
+        label = f"**{backend}**" if backend == default else backend
+        out += f"| {label} | {ms:.1f} | {ms / fastest:.2f}x |\n"
+    return out
+
+
+def ply_table(ours: float, open3d: float | None) -> str:
+    out = "\n| back-projection + binary PLY to disk | median ms |\n|---|---|\n"
+    out += f"| rgb2cloud (`point_cloud` + `encode_ply`) | {ours:.1f} |\n"
+    if open3d is None:
+        return out + "| Open3D | not installed (`pip install -e '.[bench]'`) |\n"
+    return (
+        out
+        + f"| Open3D (`create_from_rgbd_image` + `write_point_cloud`) | {open3d:.1f} ({open3d / ours:.2f}x ours) |\n"
+    )
+
+
+def throughput_table(http: HttpFigures) -> str:
+    out = (
+        "\nThroughput of /depth under concurrent clients, against the generator's single-stream rate "
+        "(1 / its median latency in this process, measured just before each row).\n\n"
+        "| concurrent clients | requests | errors | images/s | generator alone, images/s | ratio |\n"
+        "|---|---|---|---|---|---|\n"
+    )
+    for clients, (rate, errors, total, alone) in http.throughput.items():
+        out += f"| {clients} | {total} | {errors} | {rate:.2f} | {alone:.2f} | {rate / alone:.0%} |\n"
+    before, after = http.rss_mb
+    return out + f"\nServer RSS: {before:.0f} MB before the concurrency runs, {after:.0f} MB after.\n"
 
 
 def main() -> None:
@@ -124,146 +317,26 @@ def main() -> None:
 
     settings = Settings(registry=args.registry, threads=args.threads, model=args.model)
     model = ModelCatalog(settings).load_default()
-    card = model.card
-    data = args.image.read_bytes()
-    rgb = decode_image(data, settings.max_pixels).rgb
-    h, w = rgb.shape[:2]
-    m = card.input_multiple
-    x = rgb_to_input(pad_to_multiple(rgb, m))
-    session, name = model.generator.session, model.generator.input_name
-    depth = model.predict_depth(rgb)
-    c = card.camera
-    k = Intrinsics(c.fx, c.fy, c.cx, c.cy, c.width, c.height).resized(w, h)
-    points = point_cloud(depth, rgb, k)
-
+    photo = Photo.load(args.image, model, settings.max_pixels)
     r = args.repeats
-    stages = {
-        "decode (JPEG -> RGB)": median_ms(lambda: decode_image(data, settings.max_pixels), r),
-        "fit to grid (pad + normalise)": median_ms(lambda: rgb_to_input(pad_to_multiple(rgb, m)), r),
-        "generator (ONNX Runtime)": median_ms(lambda: session.run(None, {name: x}), r),
-        "depth decode (tanh -> metres)": median_ms(lambda: card.depth_encoding.decode(x[0, 0, :h, :w]), r),
-        "depth PNG encode": median_ms(lambda: encode_depth_png(depth), r),
-        "back-projection": median_ms(lambda: point_cloud(depth, rgb, k), r),
-        "PLY encode": median_ms(lambda: encode_ply(points), r),
-    }
+    stages = stage_times(photo, settings.max_pixels, r)
+    png_encoders = depth_png_encoders(photo.depth, r)
+    http = http_figures(args, photo)
+    backends = backend_times(model, args.registry, photo.x, args.threads, r)
+    ours, open3d = ply_times(photo, r)
 
-    png_encoders = depth_png_encoders(depth, r)
-
-    with running_service(registry=str(args.registry), threads=str(args.threads), model=args.model) as service:
-        url = service.url
-        client = httpx.Client(timeout=60)
-        files = {"image": ("photo.jpg", data)}
-        shares = {}
-        for route in ("/depth", "/pointcloud"):
-            rows = []
-            for _ in range(r + 1):
-                start = time.perf_counter()
-                response = client.post(f"{url}{route}", files=files)
-                total = (time.perf_counter() - start) * 1000
-                rows.append({"total": total, **server_timing(response)})
-            rows = rows[1:]  # the first request warms the connection
-            stages[f"HTTP total {route}"] = statistics.median(row["total"] for row in rows)
-            shares[route] = {name: statistics.median(row[name] for row in rows) for name in rows[0] if name != "total"}
-            shares[route]["HTTP, multipart and framework (total - server stages)"] = statistics.median(
-                row["total"] - sum(v for k, v in row.items() if k != "total") for row in rows
-            )
-            shares[route]["outside the model call"] = statistics.median(row["total"] - row["inference"] for row in rows)
-            shares[route]["total"] = stages[f"HTTP total {route}"]
-        for version in list_versions(args.registry, card.name):  # each version through the same service
-            ask = partial(client.post, f"{url}/depth", params={"model": f"{card.name}:{version}"}, files=files)
-            stages[f"HTTP total /depth?model={card.name}:{version}"] = median_ms(ask, r)
-        rss_before = resident_mb(service.pid)
-        throughput = {}
-        per_client = max(2, r // 2)
-
-        def one_client(_: int) -> list[int]:
-            with httpx.Client(timeout=120) as own:
-                return [own.post(f"{url}/depth", files=files).status_code for _ in range(per_client)]
-
-        for clients in (1, 2, 4, 8):
-            # The generator's own rate is re-measured right before each level: on a shared,
-            # noisy machine a rate taken minutes earlier is not a fair yardstick.
-            alone = 1000 / median_ms(lambda: session.run(None, {name: x}), max(5, r // 2))
-            start = time.perf_counter()
-            with ThreadPoolExecutor(clients) as pool:
-                statuses = [s for batch in pool.map(one_client, range(clients)) for s in batch]
-            elapsed = time.perf_counter() - start
-            errors = sum(s != 200 for s in statuses)
-            throughput[clients] = (len(statuses) / elapsed, errors, len(statuses), alone)
-        rss_after = resident_mb(service.pid)
-
-    backends = backend_times(model, args.registry, x, args.threads, r)
-    default = f"{card.version}, ONNX Runtime"
-
-    open3d_row = None
-    with tempfile.TemporaryDirectory() as tmp:
-        ours = median_ms(lambda: Path(tmp, "ours.ply").write_bytes(encode_ply(point_cloud(depth, rgb, k))), r)
-        try:
-            import open3d as o3d
-
-            colour_image = o3d.geometry.Image(np.ascontiguousarray(rgb))
-            depth_image = o3d.geometry.Image(np.ascontiguousarray(depth))
-            intrinsic = o3d.camera.PinholeCameraIntrinsic(w, h, k.fx, k.fy, k.cx, k.cy)
-
-            def open3d_cloud() -> None:
-                rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
-                    colour_image, depth_image, depth_scale=1.0, depth_trunc=1000.0, convert_rgb_to_intensity=False
-                )
-                cloud = o3d.geometry.PointCloud.create_from_rgbd_image(rgbd, intrinsic)
-                o3d.io.write_point_cloud(str(Path(tmp, "open3d.ply")), cloud, write_ascii=False)
-
-            open3d_row = median_ms(open3d_cloud, r)
-        except ImportError:
-            pass
-
-    out = io.StringIO()
-    out.write(
+    h, w = photo.rgb.shape[:2]
+    card = model.card
+    text = (
         f"Machine: {machine()}\n\nModel: {card.name} {card.version}, {w}x{h} photo "
         f"`{args.image.name}`, {args.threads} inference threads, medians of {r} runs.\n\n"
+        + stage_table(stages | http.totals)
+        + share_tables(http.shares)
+        + png_table(png_encoders, w, h)
+        + backend_table(backends, card)
+        + ply_table(ours, open3d)
+        + throughput_table(http)
     )
-    out.write("| stage | median ms |\n|---|---|\n")
-    for stage, ms in stages.items():
-        out.write(f"| {stage} | {ms:.1f} |\n")
-    out.write(
-        "\nOne request at a time, split by the service's `Server-Timing` header (server stages; `inference` is "
-        "the model call: fit to grid + generator + decode to metres) and the client's wall clock:\n"
-    )
-    for route, split in shares.items():
-        out.write(f"\n| {route} | median ms | share of total |\n|---|---|---|\n")
-        for name, ms in split.items():
-            label = f"**{name}**" if name == "outside the model call" else name
-            out.write(f"| {label} | {ms:.1f} | {ms / split['total']:.0%} |\n")
-    out.write(f"\n| depth PNG, {w}x{h}, compression level {PNG_COMPRESS_LEVEL} | median ms | KB |\n|---|---|---|\n")
-    for label, (ms, size) in png_encoders.items():
-        out.write(f"| {label} | {ms:.1f} | {size / 1000:.0f} |\n")
-    fastest = min(backends.values())
-    out.write(
-        f"\nThe default path (**bold**: {card.name} {card.version} on ONNX Runtime, what `make serve` runs) against "
-        "every version and backend, the generator call alone:\n"
-    )
-    out.write("\n| version, backend | median ms | vs the fastest |\n|---|---|---|\n")
-    for backend, ms in backends.items():
-        label = f"**{backend}**" if backend == default else backend
-        out.write(f"| {label} | {ms:.1f} | {ms / fastest:.2f}x |\n")
-    out.write("\n| back-projection + binary PLY to disk | median ms |\n|---|---|\n")
-    out.write(f"| rgb2cloud (`point_cloud` + `encode_ply`) | {ours:.1f} |\n")
-    if open3d_row is not None:
-        out.write(
-            f"| Open3D (`create_from_rgbd_image` + `write_point_cloud`) | {open3d_row:.1f} "
-            f"({open3d_row / ours:.2f}x ours) |\n"
-        )
-    else:
-        out.write("| Open3D | not installed (`pip install -e '.[bench]'`) |\n")
-    out.write(
-        "\nThroughput of /depth under concurrent clients, against the generator's single-stream rate "
-        "(1 / its median latency in this process, measured just before each row).\n\n"
-        "| concurrent clients | requests | errors | images/s | generator alone, images/s | ratio |\n"
-        "|---|---|---|---|---|---|\n"
-    )
-    for clients, (rate, errors, total, alone) in throughput.items():
-        out.write(f"| {clients} | {total} | {errors} | {rate:.2f} | {alone:.2f} | {rate / alone:.0%} |\n")
-    out.write(f"\nServer RSS: {rss_before:.0f} MB before the concurrency runs, {rss_after:.0f} MB after.\n")
-    text = out.getvalue()
     print(text)
     if args.markdown:
         args.markdown.write_text(
