@@ -6,7 +6,7 @@ INSTALLED := $(VENV)/.installed
 SERVE_VENV := .venv-serve
 SERVE_INSTALLED := $(SERVE_VENV)/.installed
 
-.PHONY: install test lint serve openapi system-packages
+.PHONY: install test test-quick lint serve openapi system-packages
 
 $(INSTALLED): pyproject.toml
 	python3 -m venv $(VENV)
@@ -38,8 +38,13 @@ system-packages:
 test: lint system-packages
 	$(PY) -m pytest
 
+# The quick tier while developing (under two minutes): no fits, trainings, clusters or browsers.
+test-quick: lint system-packages
+	$(PY) -m pytest -m "not slow"
+
 # The service on 127.0.0.1:8000 with the bundled default model (weights/); RGB2CLOUD_* overrides.
-# The bundled registry holds more than one model: the kitchen model is the default unless told otherwise.
+# fit publishes into weights/ unless told otherwise, so the registry may hold several models: the
+# kitchen model stays the default unless RGB2CLOUD_MODEL (or another RGB2CLOUD_REGISTRY) says otherwise.
 serve: $(SERVE_INSTALLED)
 	$(if $(RGB2CLOUD_REGISTRY)$(RGB2CLOUD_MODEL),,RGB2CLOUD_MODEL=rgb2cloud-7scenes) $(SERVE_VENV)/bin/python -m app
 

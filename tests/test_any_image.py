@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from PIL import ExifTags, Image, ImageOps
 from plyfile import PlyData
 
-from app.process import running_service
+from harness.service import running_service
 
 EXAMPLES = 200
 MODES = ["RGB", "L", "LA", "RGBA", "P", "CMYK", "I;16", "I", "F", "1"]
@@ -81,6 +81,7 @@ def service():
         yield running.url
 
 
+@pytest.mark.slow
 def test_any_image_and_query_gets_a_result_or_a_4xx_never_a_5xx(service):
     outcomes: Counter[str] = Counter()
 

@@ -17,9 +17,9 @@ from conftest import REPO, SEVEN_SCENES
 from PIL import ExifTags, Image
 
 from app.camera import FILM_DIAGONAL_MM, CameraQuery, exif_focal, generator_size, photo_camera
-from app.process import running_service
 from contract.card import Camera, load_card
 from contract.geometry import Intrinsics
+from harness.service import running_service
 from trainer.data.frames import read_depth_png
 from trainer.metrics import MetricAccumulator
 
@@ -143,6 +143,7 @@ def bundled_service():
         yield service.url
 
 
+@pytest.mark.slow
 def test_enlarged_frames_with_their_focal_length_keep_their_delta1(bundled_service):
     """With its focal length (query or EXIF) an enlarged frame scores as its centre crop does, and far better
     than without; at 1.25x within 0.03 of the whole frame. At 1.5x the narrower view itself costs more:

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import httpx
 import numpy as np
+import pytest
 from conftest import TUM_FRAME, run_cli
 from PIL import Image
 from plyfile import PlyData
 
 from app.client import ClientOptions, run
-from app.process import running_service
+from harness.service import running_service
 
 
 def _photos(folder, count=2):
@@ -58,6 +59,7 @@ def test_client_reports_errors_and_gives_up_after_retries(tmp_path):
     assert outcomes == [(photos / "photo0.jpg", "error: HTTP 503: busy")]
 
 
+@pytest.mark.slow
 def test_a_concurrent_batch_against_a_saturated_service_completes_and_resumes(registry, tmp_path):
     """Eight photos, six in flight, a service taking one at a time with no queue: 503s, retried, all done.
 

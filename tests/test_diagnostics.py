@@ -73,6 +73,7 @@ def test_where_fails_reports_no_rate_where_nothing_is_counted():
         WhereFails().result()
 
 
+@pytest.mark.slow
 def test_diagnose_prints_both_diagnostics_for_a_published_model(registry):
     stdout = run_cli(
         "diagnose",

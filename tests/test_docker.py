@@ -16,7 +16,10 @@ import httpx
 import pytest
 from conftest import REPO, TUM_FRAME
 
-from app.process import free_port
+from harness.service import free_port
+
+#: Real processes, networks or browsers: the full suite (`make test`) runs these, `-m 'not slow'` skips them.
+pytestmark = pytest.mark.slow
 
 DOCKERFILE = REPO / "Dockerfile"
 
@@ -87,18 +90,15 @@ def test_install_and_start_steps_in_a_clean_venv(tmp_path):
     assert no_torch.stdout.strip() == "True", "the serving install pulled in torch"
 
     env |= {"RGB2CLOUD_HOST": "127.0.0.1", "RGB2CLOUD_PORT": str(free_port()), "RGB2CLOUD_THREADS": "1"}
-    server = subprocess.Popen(
-        [python if c == "python" else c for c in cmd],
-        cwd=context,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    log = tmp_path / "service.log"  # a file, not a pipe: an undrained pipe fills and blocks the service
+    with open(log, "w") as out:
+        server = subprocess.Popen(
+            [python if c == "python" else c for c in cmd], cwd=context, env=env, stdout=out, stderr=subprocess.STDOUT
+        )
     try:
         url = f"http://127.0.0.1:{env['RGB2CLOUD_PORT']}"
         for _ in range(300):
-            assert server.poll() is None, server.stdout.read()
+            assert server.poll() is None, log.read_text()
             check = subprocess.run([python if c == "python" else c for c in healthcheck], env=env, capture_output=True)
             if check.returncode == 0:
                 break

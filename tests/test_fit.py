@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
 import time
@@ -16,9 +15,9 @@ import torch
 from conftest import REPO, run_cli
 from PIL import Image
 
-from app.process import running_service
 from contract.card import load_card
 from contract.runtime import OnnxGenerator
+from harness.service import running_service
 from trainer.checkpoint import load_generator_weights
 from trainer.data.folders import CameraFile, find_pairs, read_intrinsics_json
 from trainer.fit.budget import Plan, Workload, plan_training
@@ -91,6 +90,7 @@ def refused(*args: str) -> str:
     return last
 
 
+@pytest.mark.slow
 def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path):
     data = write_recording(tmp_path / "rec", 24, open3d=True, timestamps=True)
     start = registry / "tiny" / "0.1.0"
@@ -101,7 +101,7 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path)
     assert "| fitted model |" in stdout and "| tiny 0.1.0, zero-shot (the start) |" in stdout
     folder = tmp_path / "registry" / "my-room" / "0.1.0"
     card = load_card(folder)
-    assert card.training.fit.started_from == str(start) and card.training.fit.budget_min == 1.0
+    assert card.training.fit.start_from == str(start) and card.training.fit.budget_min == 1.0
     split = card.training.fit.split
     assert {part: split[part]["frames"] for part in split} == {"train": 16, "selection": 2, "gap": 1, "holdout": 5}
     assert split["holdout"]["last"] == f"{1000 + 23 / 30:.6f}"  # the end of the recording, in time order
@@ -118,22 +118,45 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path)
         photo = next((data / "color").iterdir()).read_bytes()
         response = httpx.post(f"{service.url}/depth", files={"image": photo}, timeout=30)
         assert response.status_code == 200 and response.headers["x-model-version"] == "0.1.0"
-    assert json.loads((tmp_path / "run" / "fit.json").read_text())["start"] == str(start)
+    assert json.loads((tmp_path / "run" / "fit.json").read_text())["start_from"] == str(start)
 
 
+#: ``rgb2cloud ARGS`` whose process sends itself SIGINT (Ctrl-C) after the first training step that
+#: follows its first checkpoint: the interruption lands mid-training on any machine, however fast.
+CTRL_C_AFTER_FIRST_CHECKPOINT = """
+import os, signal, sys
+from pathlib import Path
+
+import trainer.fit.workflow as workflow
+from cli.main import main
+
+last, *sys.argv[1:] = sys.argv[1:]
+tick = workflow.Progress.tick
+
+
+def tick_then_interrupt(self, *step):
+    tick(self, *step)
+    if step and Path(last).exists():
+        os.kill(os.getpid(), signal.SIGINT)
+
+
+workflow.Progress.tick = tick_then_interrupt
+main()
+"""
+
+
+@pytest.mark.slow
 def test_an_interrupted_fit_resumes_where_it_stopped(registry, tmp_path):
     data = write_recording(tmp_path / "rec", 24, open3d=False)
     args = fit_args(data, tmp_path, registry / "tiny" / "0.1.0")
-    process = subprocess.Popen([sys.executable, "-m", "cli", *args], cwd=REPO, stderr=subprocess.PIPE, text=True)
     last = tmp_path / "run" / "train" / "checkpoints" / "last.pt"
-    deadline = time.monotonic() + 120
-    while not last.exists() and process.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.05)
-    process.send_signal(signal.SIGINT)
-    _, stderr = process.communicate(timeout=60)
-    assert process.returncode == 130 and "--resume" in stderr and "Traceback" not in stderr
+    command = [sys.executable, "-c", CTRL_C_AFTER_FIRST_CHECKPOINT, str(last), *args]
+    interrupted = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=300)
+    stderr = interrupted.stderr
+    assert interrupted.returncode == 130 and "--resume" in stderr and "Traceback" not in stderr, stderr
     stopped_at = torch.load(last, weights_only=True)["step"]
-    assert stopped_at > 0
+    plan = json.loads((tmp_path / "run" / "fit.json").read_text())["plan"]
+    assert stopped_at == plan["checkpoint_every"] < plan["steps"]
     assert "a fit is already there; add --resume" in refused(*args)
     result = run_cli(*args, "--resume")
     assert f"resuming at step {stopped_at} of" in result.stdout + result.stderr
@@ -208,6 +231,7 @@ def test_both_intrinsics_forms_and_command_line_overrides(tmp_path):
     assert (pairs[0].fx, pairs[0].cy, pairs[0].depth_scale) == (100, 15, 1000)
 
 
+@pytest.mark.slow
 def test_wrong_units_and_too_few_pairs_are_refused_with_what_to_do(tmp_path):
     metres_as_millimetres = write_recording(tmp_path / "mm", 24, depth_scale=1000.0)
     message = refused("fit", str(metres_as_millimetres), "--name", "x", "--licence", "y", "--depth-scale", "1")

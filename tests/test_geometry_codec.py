@@ -4,16 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import KINECT
 
 from contract.codec import DepthEncoding, rgb_to_input
-from contract.geometry import KINECT_DEFAULT, POINT, Intrinsics, colours, pad_to_multiple, point_cloud, xyz
+from contract.geometry import POINT, Intrinsics, colours, pad_to_multiple, point_cloud, xyz
 from trainer.config import TransformConfig
 from trainer.data.frames import Frame
 from trainer.data.transforms import TransformParams, apply_params, sample_params
 
 
 def test_point_cloud_is_formula_5():
-    k = KINECT_DEFAULT
+    k = KINECT
     depth = np.full((k.height, k.width), 2.0, dtype=np.float32)
     rgb = np.zeros((k.height, k.width, 3), np.uint8)
     rgb[400, 100] = (10, 20, 30)
@@ -75,7 +76,7 @@ def test_sampled_params_cover_the_crop_and_jitter_only_rgb():
         top, left, ch, cw = p.crop
         assert (ch, cw) == (96, 128)
         assert top + ch <= p.resize[0] and left + cw <= p.resize[1]
-    frame = Frame(np.full((480, 640, 3), 100, np.uint8), np.full((480, 640), 2.0, np.float32), KINECT_DEFAULT, "f")
+    frame = Frame(np.full((480, 640, 3), 100, np.uint8), np.full((480, 640), 2.0, np.float32), KINECT, "f")
     out = apply_params(frame, sample_params(np.random.default_rng(1), TransformConfig(brightness=0.5), 480, 640))
     np.testing.assert_allclose(out.depth, 2.0)  # nearest-neighbour depth, untouched by colour jitter
     assert out.intrinsics.width == 320 and out.intrinsics.height == 240

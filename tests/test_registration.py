@@ -160,6 +160,7 @@ def test_colour_camera_resizes_with_its_images():
     assert half.baseline_m == colour.baseline_m and colour.resized(1.0) is colour
 
 
+@pytest.mark.slow
 def test_calibrate_fits_the_real_kinect_pair_better_than_one_camera():
     same = "{fx: 585, fy: 585, cx: 320, cy: 240}"  # camera-intrinsics.txt: the depth camera's own
     args = ("calibrate", str(SEVEN_SCENES), "--frames", "0-799", "--every", "400", "--compare", same)

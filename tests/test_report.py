@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from conftest import REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, run_cli
+from conftest import KINECT, REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, run_cli
 from PIL import Image
 
-from contract.geometry import KINECT_DEFAULT, colours, point_cloud, xyz
+from contract.geometry import colours, point_cloud, xyz
 from contract.spec import GeneratorSpec
 from lab.experiments import config_diff, experiments_section
 from lab.records import ScoreRecord, record_config
@@ -45,6 +45,7 @@ def refused(*args: str) -> str:
     return result.stdout + result.stderr
 
 
+@pytest.mark.slow
 def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, trained_checkpoint, tmp_path):
     out = tmp_path / "docs"
     unseen = write_unseen_manifest(tmp_path / "tum-fr3-office.csv")  # the unseen frame, read in place
@@ -117,6 +118,7 @@ def test_report_scores_every_row_and_keeps_dataset_pixels_local(registry, traine
         build_report(dataclasses.replace(inputs, test_frames="850-850"))
 
 
+@pytest.mark.slow
 def test_a_run_scored_elsewhere_is_stored_as_the_record_the_report_would_make(trained_checkpoint, tmp_path):
     """``rgb2cloud record`` from ``evaluate``'s two outputs equals the report scoring the checkpoint itself."""
     unseen = write_unseen_manifest(tmp_path / "tum-fr3-office.csv")
@@ -170,6 +172,7 @@ def test_a_run_scored_elsewhere_is_stored_as_the_record_the_report_would_make(tr
     assert "scored 1 frame(s)" in refused("record", "x", *other)
 
 
+@pytest.mark.slow
 def test_a_run_trained_on_registered_depth_is_scored_through_its_colour_camera(trained_checkpoint, tmp_path):
     """The report scores such a checkpoint as ``evaluate --colour-camera`` does, and others pixel to pixel."""
     camera = "{fx: 530, fy: 530, cx: 314.5, cy: 239, baseline_m: 0.009}"
@@ -257,7 +260,7 @@ def test_render_turns_about_the_centre_and_nearest_point_wins():
     depth = np.full((48, 64), 2.0, dtype=np.float32)
     rgb = np.zeros((48, 64, 3), dtype=np.uint8)
     rgb[..., 0] = 200
-    intrinsics = KINECT_DEFAULT.resized(64, 48)
+    intrinsics = KINECT.resized(64, 48)
     cloud = point_cloud(depth, rgb, intrinsics)
     points = xyz(cloud)
     front = render_points(points, colours(cloud), np.median(points, axis=0), yaw_deg=0, pitch_deg=0, size=(60, 80))

@@ -26,8 +26,11 @@ import pytest
 from conftest import REPO, TUM_FRAME, run_cli
 from PIL import Image
 
-from app.process import ServiceProcess, free_port, resident_mb
 from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, load_card, publish
+from harness.service import ServiceProcess, free_port, resident_mb
+
+#: Real processes, networks or browsers: the full suite (`make test`) runs these, `-m 'not slow'` skips them.
+pytestmark = pytest.mark.slow
 
 NGINX = shutil.which("nginx") or "/usr/sbin/nginx"
 REPORT = REPO / "runs" / "test-artifacts" / "scale-out.md"
@@ -47,11 +50,11 @@ class Balancer:
         servers = "".join(f"    server 127.0.0.1:{p} max_fails=0;\n" for p in ports)  # as upstream.compose.conf
         (folder / "upstream.conf").write_text(f"upstream rgb2cloud {{\n{servers}    keepalive 32;\n}}\n")
         self.log = folder / "rgb2cloud-nginx-access.log"
-        self.process = subprocess.Popen(
-            [NGINX, "-p", str(folder), "-c", str(folder / "nginx.conf"), "-g", "daemon off;"],
-            stderr=subprocess.PIPE,
-            text=True,
-        )
+        self.stderr = folder / "nginx-stderr.log"  # a file, not a pipe nobody drains
+        with open(self.stderr, "w") as out:
+            self.process = subprocess.Popen(
+                [NGINX, "-p", str(folder), "-c", str(folder / "nginx.conf"), "-g", "daemon off;"], stderr=out
+            )
         self.url = f"http://127.0.0.1:{self.port}"
         deadline = time.monotonic() + 20
         while True:
@@ -60,7 +63,7 @@ class Balancer:
                 break
             except httpx.TransportError:
                 if self.process.poll() is not None or time.monotonic() > deadline:
-                    raise RuntimeError(f"nginx did not start: {self.process.stderr.read()}") from None
+                    raise RuntimeError(f"nginx did not start: {self.stderr.read_text()}") from None
                 time.sleep(0.1)
 
     def retried_since(self, line: int) -> int:

@@ -7,9 +7,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from conftest import REPO
 
-from app.process import running_service
+from harness.service import running_service
+
+#: Real processes, networks or browsers: the full suite (`make test`) runs these, `-m 'not slow'` skips them.
+pytestmark = pytest.mark.slow
 
 
 def test_schemathesis_finds_no_server_error(registry):

@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 from conftest import REPO, run_cli, tiny_config, write_config
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from harness.service import free_port
+
+#: Real processes, networks or browsers: the full suite (`make test`) runs these, `-m 'not slow'` skips them.
+pytestmark = pytest.mark.slow
 
 
 def _scalars(run_dir, tag):
@@ -136,15 +141,15 @@ def test_ddp_two_cpu_processes_end_with_identical_weights(tmp_path):
 
 def test_two_nodes_on_loopback_end_with_identical_weights(tmp_path):
     """Two torchrun "nodes" (one process each, gloo on CPU) that meet through c10d rendezvous, as on two machines."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     rendezvous = ["--rdzv-backend", "c10d", "--rdzv-endpoint", f"127.0.0.1:{port}", "--rdzv-id", "two-nodes"]
     command = torchrun(["--nnodes", "2", "--nproc_per_node", "1", *rendezvous], ddp_config(tmp_path))
-    nodes = [
-        subprocess.Popen(command, cwd=REPO, env=ONE_THREAD, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        for _ in range(2)
-    ]
-    outputs = [node.communicate(timeout=300)[0] for node in nodes]
-    assert [node.returncode for node in nodes] == [0, 0], "\n".join(o[-2000:] for o in outputs)
+    # Each node logs to a file: waiting on one node while the other fills an undrained pipe would stall both.
+    logs = [tmp_path / f"node-{i}.log" for i in range(2)]
+    nodes = []
+    for log in logs:
+        with open(log, "w") as out:
+            nodes.append(subprocess.Popen(command, cwd=REPO, env=ONE_THREAD, stdout=out, stderr=subprocess.STDOUT))
+    codes = [node.wait(timeout=300) for node in nodes]
+    assert codes == [0, 0], "\n".join(log.read_text()[-2000:] for log in logs)
     assert_two_ranks_agree(tmp_path / "run")

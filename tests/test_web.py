@@ -18,7 +18,10 @@ from conftest import REPO, TUM_FRAME
 from PIL import Image
 from plyfile import PlyData
 
-from app.process import running_service
+from harness.service import running_service
+
+#: Real processes, networks or browsers: the full suite (`make test`) runs these, `-m 'not slow'` skips them.
+pytestmark = pytest.mark.slow
 
 ARTIFACTS = REPO / "runs" / "test-artifacts" / "web"
 PHOTO = TUM_FRAME / "TUM_color.png"
