@@ -21,7 +21,7 @@ from harness.service import running_service
 from trainer.checkpoint import load_generator_weights
 from trainer.data.folders import CameraFile, find_pairs, read_intrinsics_json
 from trainer.fit.budget import Plan, Workload, plan_training
-from trainer.fit.recording import detect_format, open_recording
+from trainer.fit.recording import ReadOptions, detect_format, open_recording
 from trainer.fit.split import split_recording
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.networks import GlobalGenerator
@@ -106,6 +106,11 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path)
     assert {part: split[part]["frames"] for part in split} == {"train": 16, "selection": 2, "gap": 1, "holdout": 5}
     assert split["holdout"]["last"] == f"{1000 + 23 / 30:.6f}"  # the end of the recording, in time order
     assert card.training.data[0].licence == "mOSD (research use), test copy"
+    # The start's data, and its licences, come with its weights: tiny was trained on 7-Scenes.
+    assert card.training.fit.start_model == "tiny 0.1.0"
+    inherited = card.training.data[1:]
+    assert inherited == [d.model_copy(update={"via": "tiny 0.1.0"}) for d in load_card(start).training.data]
+    assert "non-commercial" in inherited[0].licence
     labels = [m.label for m in card.metrics]
     assert labels[0] is None and labels[1] == "tiny 0.1.0, zero-shot (the start)"
     assert labels[2].startswith("baseline: constant") and labels[3] == "baseline: per-pixel train median"
@@ -118,20 +123,29 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path)
         photo = next((data / "color").iterdir()).read_bytes()
         response = httpx.post(f"{service.url}/depth", files={"image": photo}, timeout=30)
         assert response.status_code == 200 and response.headers["x-model-version"] == "0.1.0"
+        listed = httpx.get(f"{service.url}/v1/models", timeout=10).json()["models"][0]["versions"][0]["card"]
+        assert [d["licence"] for d in listed["data"]] == [d.licence for d in card.training.data]
     assert json.loads((tmp_path / "run" / "fit.json").read_text())["start_from"] == str(start)
 
 
 #: ``rgb2cloud ARGS`` whose process sends itself SIGINT (Ctrl-C) after the first training step that
-#: follows its first checkpoint: the interruption lands mid-training on any machine, however fast.
+#: follows its first checkpoint: the interruption lands mid-training on any machine, however fast or
+#: loaded. The plan is fixed (40 steps, a checkpoint every 4), so the machine's speed cannot decide
+#: whether a checkpoint comes before the end.
 CTRL_C_AFTER_FIRST_CHECKPOINT = """
 import os, signal, sys
 from pathlib import Path
 
 import trainer.fit.workflow as workflow
 from cli.main import main
+from trainer.fit.budget import Plan
 
 last, *sys.argv[1:] = sys.argv[1:]
 tick = workflow.Progress.tick
+
+
+def fixed_plan(budget_s, spent_s, step_s, work):
+    return Plan(budget_s, step_s, 3 * budget_s, 40, 20, 10, 4, 3 * budget_s)
 
 
 def tick_then_interrupt(self, *step):
@@ -141,6 +155,7 @@ def tick_then_interrupt(self, *step):
 
 
 workflow.Progress.tick = tick_then_interrupt
+workflow.plan_training = fixed_plan
 main()
 """
 
@@ -155,13 +170,16 @@ def test_an_interrupted_fit_resumes_where_it_stopped(registry, tmp_path):
     stderr = interrupted.stderr
     assert interrupted.returncode == 130 and "--resume" in stderr and "Traceback" not in stderr, stderr
     stopped_at = torch.load(last, weights_only=True)["step"]
-    plan = json.loads((tmp_path / "run" / "fit.json").read_text())["plan"]
-    assert stopped_at == plan["checkpoint_every"] < plan["steps"]
+    assert stopped_at == 4  # the first checkpoint; the interruption came at step 5 of 40
     assert "a fit is already there; add --resume" in refused(*args)
     result = run_cli(*args, "--resume")
     assert f"resuming at step {stopped_at} of" in result.stdout + result.stderr
     card = load_card(tmp_path / "registry" / "my-room" / "0.1.0")
-    assert card.training.steps >= stopped_at
+    assert card.training.steps == 40
+    # Finished: resuming again publishes nothing and says what was published.
+    message = refused(*args, "--resume")
+    assert "this fit finished and published" in message and "my-room/0.1.0" in message
+    assert not (tmp_path / "registry" / "my-room" / "0.2.0").exists()
 
 
 def test_starting_from_a_published_version_reproduces_its_outputs_at_step_0(registry):
@@ -192,6 +210,11 @@ def test_layouts_are_detected_and_an_unknown_one_is_explained(tmp_path):
     (tmp_path / "odd" / "notes.txt").write_text("")
     message = refused("fit", str(tmp_path / "odd"), "--name", "x", "--licence", "y")
     assert "cannot tell its layout (found notes.txt, pictures/)" in message and "color/" in message
+    (tmp_path / "photos-only" / "rgb").mkdir(parents=True)
+    message = refused("fit", str(tmp_path / "photos-only"), "--name", "x", "--licence", "y")
+    assert message.endswith(
+        "photos-only: rgb/ but no depth/ folder: fit needs depth images (16-bit PNG) beside the photos"
+    )
 
 
 def test_pairs_match_by_name_or_by_nearest_timestamp(tmp_path):
@@ -226,8 +249,8 @@ def test_both_intrinsics_forms_and_command_line_overrides(tmp_path):
     data = write_recording(tmp_path / "rec", 2)
     (data / "intrinsics.json").unlink()
     with pytest.raises(ValueError, match=r"no camera intrinsics .* pass --fx --fy --cx --cy"):
-        open_recording(data, None, CameraFile(), tmp_path)
-    pairs = open_recording(data, None, CameraFile(100, 100, 20, 15, 1000), tmp_path).pairs
+        open_recording(data, None, ReadOptions(), tmp_path)
+    pairs = open_recording(data, None, ReadOptions(CameraFile(100, 100, 20, 15, 1000)), tmp_path).pairs
     assert (pairs[0].fx, pairs[0].cy, pairs[0].depth_scale) == (100, 15, 1000)
 
 
@@ -243,7 +266,7 @@ def test_wrong_units_and_too_few_pairs_are_refused_with_what_to_do(tmp_path):
 
 
 def test_the_split_is_time_ordered_with_a_gap_or_the_named_holdout(tmp_path):
-    pairs = open_recording(write_recording(tmp_path / "rec", 40), None, CameraFile(), tmp_path).pairs
+    pairs = open_recording(write_recording(tmp_path / "rec", 40), None, ReadOptions(), tmp_path).pairs
     split = split_recording(pairs)
     assert (split.train[-1], split.selection, split.gap, split.holdout[0]) == (26, [27, 28, 29], [30, 31], 32)
     assert max(split.train + split.selection) < min(split.gap) < min(split.holdout)
