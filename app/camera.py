@@ -123,7 +123,14 @@ def generator_size(camera: Intrinsics, model: Camera, max_pixels: int) -> tuple[
     """(width, height) at which the photo has the model's focal length, shrunk to ``max_pixels`` if over."""
     width = camera.width * model.fx / camera.fx
     height = camera.height * model.fy / camera.fy
-    if width * height > max_pixels:
-        shrink = math.sqrt(max_pixels / width / height)
-        width, height = width * shrink, height * shrink
-    return max(1, round(width)), max(1, round(height))
+    shrink = focal_ratio(width, height, max_pixels)
+    return max(1, round(width * shrink)), max(1, round(height * shrink))
+
+
+def focal_ratio(width: float, height: float, max_pixels: int) -> float:
+    """The generator's focal length over the model's for a photo that needs ``width`` x ``height`` to match.
+
+    1 when the photo fits ``max_pixels`` at the model's focal length; below 1 when it must be
+    shrunk further, and the generator then sees everything smaller, so farther, than in training.
+    """
+    return min(1.0, math.sqrt(max_pixels / (width * height)))

@@ -31,6 +31,7 @@ EXPOSED_HEADERS = [
     "X-Point-Count",
     "X-Intrinsics",
     "X-Intrinsics-Source",
+    "X-Focal-Ratio",
     "X-Inference-Ms",
     "Server-Timing",
     "Retry-After",

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from PIL import Image
 
-from app.camera import CameraQuery, PhotoCamera, generator_size, photo_camera
+from app.camera import CameraQuery, PhotoCamera, focal_ratio, generator_size, photo_camera
 from app.imaging import decode_image, encode_colormap_png, encode_depth_png
 from app.loading import LoadedModel
 from app.ply import encode_ply
@@ -45,39 +45,51 @@ class Stopwatch:
         self._last = now
 
 
-def infer(model: LoadedModel, rgb: np.ndarray, camera: Intrinsics, max_pixels: int) -> np.ndarray:
+def infer(model: LoadedModel, rgb: np.ndarray, camera: Intrinsics, max_pixels: int) -> tuple[np.ndarray, float]:
     """Depth in metres at the photo's size, the photo resampled to the model's focal length first.
 
     The resampled photo is at most ``max_pixels`` (beyond it, it is shrunk further: the cost of a
     very wide view is bounded, at some cost in accuracy); the depth is resized back to the photo.
+    Also returns the generator's focal length over the model's: 1 unless the photo was shrunk further.
     """
     h, w = rgb.shape[:2]
-    size = generator_size(camera, model.card.camera, max_pixels)
+    model_camera = model.card.camera
+    ratio = focal_ratio(w * model_camera.fx / camera.fx, h * model_camera.fy / camera.fy, max_pixels)
+    size = generator_size(camera, model_camera, max_pixels)
     if size == (w, h):
-        return model.predict_depth(rgb)
+        return model.predict_depth(rgb), ratio
     depth = model.predict_depth(np.asarray(Image.fromarray(rgb).resize(size, Image.BILINEAR)))
-    return np.asarray(Image.fromarray(depth, mode="F").resize((w, h), Image.BILINEAR), dtype=np.float32)
+    return np.asarray(Image.fromarray(depth, mode="F").resize((w, h), Image.BILINEAR), dtype=np.float32), ratio
 
 
-def model_headers(model: LoadedModel, camera: PhotoCamera) -> dict[str, str]:
-    return {
-        "X-Model-Name": model.card.name,
-        "X-Model-Version": model.card.version,
-        "X-Intrinsics": camera.header(),
-        "X-Intrinsics-Source": camera.source,
-    }
+@dataclass
+class Inferred:
+    """A decoded photo, its depth, the camera it was inferred with, and the generator's focal ratio."""
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    camera: PhotoCamera
+    focal_ratio: float
+
+    def headers(self, model: LoadedModel) -> dict[str, str]:
+        """Which model and camera made the depth; ``X-Focal-Ratio`` below 1 says the photo was shrunk further."""
+        return {
+            "X-Model-Name": model.card.name,
+            "X-Model-Version": model.card.version,
+            "X-Intrinsics": self.camera.header(),
+            "X-Intrinsics-Source": self.camera.source,
+            "X-Focal-Ratio": f"{self.focal_ratio:.4f}",
+        }
 
 
-def _photo_and_depth(
-    model: LoadedModel, data: bytes, limits: Limits, query: CameraQuery, watch: Stopwatch
-) -> tuple[np.ndarray, np.ndarray, PhotoCamera]:
+def _photo_and_depth(model: LoadedModel, data: bytes, limits: Limits, query: CameraQuery, watch: Stopwatch) -> Inferred:
     photo = decode_image(data, limits.max_pixels)
     watch.lap("decode")
     height, width = photo.rgb.shape[:2]
     camera = photo_camera(model.card.camera, width, height, query, photo.exif_focal)
-    depth = infer(model, photo.rgb, camera.intrinsics, limits.inference_max_pixels)
+    depth, ratio = infer(model, photo.rgb, camera.intrinsics, limits.inference_max_pixels)
     watch.lap("inference")
-    return photo.rgb, depth, camera
+    return Inferred(photo.rgb, depth, camera, ratio)
 
 
 @dataclass(frozen=True)
@@ -90,8 +102,8 @@ class Limits:
 
 def depth_png(model: LoadedModel, data: bytes, limits: Limits, query: CameraQuery, colormap: bool) -> Result:
     watch = Stopwatch()
-    _, depth, camera = _photo_and_depth(model, data, limits, query, watch)
-    headers = model_headers(model, camera)
+    inferred = _photo_and_depth(model, data, limits, query, watch)
+    depth, headers = inferred.depth, inferred.headers(model)
     if colormap:
         lo, hi = (float(v) for v in np.percentile(depth, [2, 98]))
         headers |= {"X-Depth-Units": "colormap", "X-Depth-Range-M": f"{lo:.3f},{hi:.3f}"}
@@ -115,11 +127,13 @@ def point_cloud_ply(
 ) -> Result:
     """Formula (5) with the photo's own camera: the one its depth was inferred with."""
     watch = Stopwatch()
-    rgb, depth, camera = _photo_and_depth(model, data, limits, query, watch)
-    k = camera.intrinsics
-    points = point_cloud(depth, rgb, k, stride=options.stride, min_depth=options.min_depth, max_depth=options.max_depth)
+    inferred = _photo_and_depth(model, data, limits, query, watch)
+    k = inferred.camera.intrinsics
+    points = point_cloud(
+        inferred.depth, inferred.rgb, k, stride=options.stride, min_depth=options.min_depth, max_depth=options.max_depth
+    )
     watch.lap("backproject")
     body = encode_ply(points)
     watch.lap("encode")
-    headers = model_headers(model, camera) | {"X-Point-Count": str(len(points))}
+    headers = inferred.headers(model) | {"X-Point-Count": str(len(points))}
     return Result(body, headers, watch.stages)

@@ -77,6 +77,11 @@ class DataRef(BaseModel):
     format: str
     frames: str
     licence: str = Field(min_length=1)
+    via: str | None = Field(
+        None,
+        description="the published model (NAME VERSION) this data reached the weights through, when it was "
+        "not trained on here: a fitted model inherits its start's data and licences",
+    )
 
 
 class Metrics(BaseModel):
@@ -129,6 +134,7 @@ class FitRecord(BaseModel):
 
     data: str = Field(description="the recording's path as given")
     start_from: str = Field(description="the published version whose generator it started from, or 'scratch'")
+    start_model: str | None = Field(None, description="that version's NAME VERSION, from its card")
     budget_min: float
     split: dict[str, Any] = Field(description="train, selection, gap and held-out parts: frames, first, last")
     registered_with: ColourCamera | None = Field(
@@ -160,7 +166,10 @@ class ModelCard(BaseModel):
         description="how the exported graph wants its input; the service serves only the encoding it feeds"
     )
     depth_encoding: DepthEncoding = Field(description="the graph's tanh output -> metres")
-    camera: Camera
+    camera: Camera = Field(
+        description="the camera at which the generator was trained (its input's scale): the service resamples "
+        "every photo to this focal length"
+    )
     training: Training
     metrics: list[Metrics] = Field(min_length=1)
     trainer_commit: str

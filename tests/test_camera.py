@@ -179,3 +179,35 @@ def test_a_phone_photo_with_exif_gets_its_own_camera(bundled_service):
         f"{bundled_service}/depth", files={"image": ("p.jpg", jpeg(photo))}, params={"fx": reported}, timeout=60
     )
     assert from_exif.content == from_query.content  # EXIF counts exactly as the same fx in the query would
+
+
+def served_frames_delta1(url: str) -> tuple[float, set[str]]:
+    """Mean δ1 over FRAMES as they are (the model's own camera), and the X-Focal-Ratio values seen."""
+    scores, ratios = MetricAccumulator(), set()
+    for frame in FRAMES:
+        photo, truth = enlarged(frame, 1.0)
+        r = httpx.post(f"{url}/depth", files={"image": ("p.jpg", jpeg(photo))}, timeout=60)
+        assert r.status_code == 200, r.text
+        ratios.add(r.headers["x-focal-ratio"])
+        with Image.open(io.BytesIO(r.content)) as im:
+            depth = np.asarray(im, dtype=np.float64) / 1000.0
+        scores.add(depth, truth, Intrinsics(*(float(v) for v in r.headers["x-intrinsics"].split(",")), 640, 480))
+    return scores.result()["delta1"], ratios
+
+
+@pytest.mark.slow
+def test_a_photo_shrunk_past_the_pixel_bound_says_so_and_what_it_costs(bundled_service):
+    """RGB2CLOUD_INFERENCE_MAX_PIXELS below the model's own camera makes the generator see every photo smaller,
+    so farther, than in training: ``X-Focal-Ratio`` says how much. Measured (docs/api.md): 0.75 costs the
+    bundled model nothing measurable (it pools its input by 2 anyway), 0.5 about 0.01 δ1."""
+    rows = {"1.0000": served_frames_delta1(bundled_service)}
+    for ratio in (0.75, 0.5):
+        bound = str(round(640 * 480 * ratio**2))
+        with running_service(model="rgb2cloud-7scenes:0.8.1", threads="2", inference_max_pixels=bound) as shrunk:
+            rows[f"{ratio:.4f}"] = served_frames_delta1(shrunk.url)
+    print("\n| X-Focal-Ratio | δ1 on RedKitchen test frames 850-999, every 15th |\n|---|---|")
+    for ratio, (delta1, _) in rows.items():
+        print(f"| {ratio} | {delta1:.3f} |")
+    for ratio, (_, seen) in rows.items():
+        assert seen == {ratio}, rows
+    assert rows["1.0000"][0] > rows["0.5000"][0], rows

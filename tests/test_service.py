@@ -149,9 +149,11 @@ def test_pointcloud_defaults_to_the_card_camera_scaled_and_strides(service, mode
     r = post(service, "/pointcloud", png_bytes(tum_rgb(320, 240)), {"stride": 4})
     assert r.headers["x-intrinsics-source"] == "model"
     fx, fy, cx, cy = (float(x) for x in r.headers["x-intrinsics"].split(","))
-    camera = model.card.camera
-    assert (fx, fy) == pytest.approx((camera.fx / 2, camera.fy / 2))
-    assert (cx, cy) == pytest.approx(((camera.cx + 0.5) / 2 - 0.5, (camera.cy + 0.5) / 2 - 0.5))
+    camera = model.card.camera  # the camera the model was trained at, its field of view across the photo
+    scale = 320 / camera.width
+    assert camera.width / camera.height == 320 / 240
+    assert (fx, fy) == pytest.approx((camera.fx * scale, camera.fy * scale))
+    assert (cx, cy) == pytest.approx(((camera.cx + 0.5) * scale - 0.5, (camera.cy + 0.5) * scale - 0.5))
     assert int(r.headers["x-point-count"]) == 80 * 60
 
 

@@ -35,6 +35,7 @@ from contract.card import (
 )
 from contract.codec import INPUT_ENCODING
 from contract.errors import UserError
+from contract.geometry import Intrinsics
 from contract.runtime import OnnxGenerator
 from trainer.checkpoint import load_graph
 from trainer.config import DataSource
@@ -146,6 +147,19 @@ def _data_ref(source: DataSource, reader: FrameReader) -> DataRef:
     )
 
 
+def training_camera(native: Intrinsics, val_scale: float) -> Intrinsics:
+    """The camera at which the generator was trained: the first source's, at the run's ``val_scale``.
+
+    Training crops and validation frames are resized by ``val_scale`` (the exported graph's
+    input scale), so this is the focal length the generator learned, and the one the
+    service resamples every photo to. ``rgb2cloud fit`` trains a large recording at a
+    smaller scale; its card must name that camera, not the recording's.
+    """
+    if val_scale == 1.0:
+        return native
+    return native.resized(round(native.width * val_scale), round(native.height * val_scale))
+
+
 def export_and_publish(
     checkpoint: Path,
     registry: Path,
@@ -175,7 +189,7 @@ def export_and_publish(
     config = weights.config
     readers = [open_source(s) for s in config.data.train]
     data = data or [_data_ref(source, reader) for source, reader in zip(config.data.train, readers, strict=True)]
-    camera = readers[0][0].intrinsics
+    camera = training_camera(readers[0][0].intrinsics, config.data.val_scale)
     with Image.open(parity_image) as im:
         image = np.asarray(im.convert("RGB"))
 

@@ -1,0 +1,125 @@
+"""Does a recording's resolution change what fit makes of it? One site as recorded, and enlarged 2x.
+
+    python bench/fit_scale.py [--budget 5] [--markdown runs/bench-scale/table.md]
+
+mosd-tabletop's frames are written again at 1280x960 (colour bicubic, depth nearest, the
+intrinsics scaled with them), as a higher-resolution camera of the same views would record
+them. Both copies are fitted with the same budget and split (train on ``learn*``, hold out
+``test*``), each from the bundled start, each in its own process. Then one service serves
+both published models, and each recording's held-out photos are posted at their own size
+with their own focal length (``fx`` in the query, as a user with a calibrated camera sends
+it) and scored against their own depth. Fit trains a large recording at a smaller scale;
+the service must feed its model photos at exactly that scale, so the two rows should agree.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import httpx
+import numpy as np
+from PIL import Image
+
+from contract.card import load_card
+from contract.geometry import Intrinsics
+from harness.service import running_service
+from trainer.data.frames import read_depth_png
+from trainer.machine import cpu_description
+from trainer.metrics import MetricAccumulator
+
+REPO = Path(__file__).resolve().parents[1]
+SITE = REPO.parent / "shared" / "data" / "mosd-tabletop"
+LICENCE = "mOSD (Richtsfeld et al., TU Wien): research use"
+OUT = REPO / "runs" / "bench-scale"
+NATIVE = Intrinsics(525.0, 525.0, 319.5, 239.5, 640, 480)  # ../shared/data/mosd-tabletop/intrinsics.json
+
+
+def enlarged_copy(target: Path, factor: int) -> Intrinsics:
+    """The site's frames ``factor`` times larger, in the folders layout; returns the copy's camera."""
+    camera = NATIVE.resized(NATIVE.width * factor, NATIVE.height * factor)
+    if (target / "intrinsics.json").is_file():
+        return camera
+    (target / "color").mkdir(parents=True, exist_ok=True)
+    (target / "depth").mkdir(exist_ok=True)
+    for colour in sorted((SITE / "color").glob("*.jpg")):
+        size = (camera.width, camera.height)
+        Image.open(colour).convert("RGB").resize(size, Image.BICUBIC).save(target / "color" / colour.name, quality=95)
+        depth = Image.open(SITE / "depth" / f"{colour.stem}.png")
+        Image.fromarray(np.asarray(depth.resize(size, Image.NEAREST), dtype=np.uint16)).save(
+            target / "depth" / f"{colour.stem}.png"
+        )
+    intrinsics = {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy, "depth_scale": 1000.0}
+    (target / "intrinsics.json").write_text(json.dumps(intrinsics))
+    return camera
+
+
+def fit(root: Path, name: str, budget: float) -> Path:
+    """``rgb2cloud fit`` of ``root`` in its own process; the published version folder."""
+    version = OUT / "registry" / name / "0.1.0"
+    if not version.is_dir():
+        args = [str(root), "--holdout", "test*", "--gap", "0", "--licence", LICENCE, "--name", name]
+        args += ["--budget", f"{budget:g}", "--register", "no", "--registry", str(OUT / "registry")]
+        args += ["--out", str(OUT / "runs" / name)]
+        subprocess.run([sys.executable, "-m", "cli", "fit", *args], cwd=REPO, check=True)
+    return version
+
+
+def served_scores(url: str, model: str, root: Path, camera: Intrinsics) -> dict[str, float]:
+    """The held-out photos of ``root`` through the service at their own size and focal length."""
+    scores, ratios = MetricAccumulator(), set()
+    for colour in sorted((root / "color").glob("test*.jpg")):
+        params = {"model": model, "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy}
+        r = httpx.post(f"{url}/depth", files={"image": colour.read_bytes()}, params=params, timeout=120)
+        r.raise_for_status()
+        ratios.add(r.headers["x-focal-ratio"])
+        with Image.open(io.BytesIO(r.content)) as im:
+            depth = np.asarray(im, dtype=np.float64) / 1000.0
+        scores.add(depth, read_depth_png(root / "depth" / f"{colour.stem}.png", 1000.0), camera)
+    result = scores.result()
+    result["focal_ratio"] = ", ".join(sorted(ratios))
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--budget", type=float, default=5.0)
+    parser.add_argument("--markdown", type=Path, help="also write the table here")
+    args = parser.parse_args()
+
+    enlarged = OUT / "mosd-tabletop-1280x960"
+    recordings = {
+        "640x480 (as recorded)": (SITE, NATIVE),
+        "1280x960 (enlarged 2x)": (enlarged, enlarged_copy(enlarged, 2)),
+    }
+    names = {label: f"mosd-{k.width}x{k.height}-{args.budget:g}min" for label, (_, k) in recordings.items()}
+    versions = {label: fit(root, names[label], args.budget) for label, (root, _) in recordings.items()}
+    rows = []
+    with running_service(registry=str(OUT / "registry"), model=f"{names['640x480 (as recorded)']}:0.1.0") as service:
+        for label, (root, camera) in recordings.items():
+            card = load_card(versions[label])
+            served = served_scores(service.url, f"{card.name}:{card.version}", root, camera)
+            own = card.metrics[0]
+            trained = f"{card.camera.width}x{card.camera.height}, fx {card.camera.fx:.1f}"
+            rows.append(
+                f"| {label} | {trained} | {card.training.steps} | {own.delta1:.3f} / {own.rel:.3f} | "
+                f"{served['delta1']:.3f} / {served['rel']:.3f} | {served['focal_ratio']} |"
+            )
+    table = (
+        f"Machine: {cpu_description()}. mosd-tabletop, {args.budget:g}-minute fits, 62 held-out `test*` captures.\n\n"
+        "| recording | card camera (trained at) | steps | fit's table δ1 / REL | served δ1 / REL | X-Focal-Ratio |\n"
+        "|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n"
+    )
+    print(table)
+    if args.markdown:
+        args.markdown.parent.mkdir(parents=True, exist_ok=True)
+        command = f"python bench/fit_scale.py --budget {args.budget:g}"
+        args.markdown.write_text(f"# A recording's resolution\n\nMade by `{command}`.\n\n{table}")
+
+
+if __name__ == "__main__":
+    main()
