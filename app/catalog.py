@@ -219,7 +219,7 @@ def card_summary(card: ModelCard) -> dict[str, Any]:
         "created": card.created.isoformat(),
         "camera": card.camera.model_dump(),
         "inference": card.inference.model_dump(),
-        "data": [{"name": d.name, "licence": d.licence} for d in card.training.data],
-        "fit": None if fit is None else {"data": fit.data, "start_from": fit.start_from},
+        "data": [{"name": d.name, "licence": d.licence, "via": d.via} for d in card.training.data],
+        "fit": None if fit is None else fit.model_dump(include={"data", "start_from", "start_model"}),
         "metrics": [{"split": m.split, "label": m.label, "delta1": m.delta1, "rel": m.rel} for m in card.metrics],
     }

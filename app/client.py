@@ -14,7 +14,7 @@ import os
 import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import httpx
@@ -24,9 +24,19 @@ IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".webp", ".tif", ".tiff", ".bmp", ".g
 OUTPUTS = {"depth": ("/depth", ".depth.png"), "pointcloud": ("/pointcloud", ".ply")}
 
 
+def service_url() -> str:
+    """Where ``make serve`` listens, from the same settings: ``RGB2CLOUD_HOST`` and ``RGB2CLOUD_PORT``.
+
+    A service bound to every interface (0.0.0.0) is reached on the loopback address.
+    """
+    host = os.environ.get("RGB2CLOUD_HOST") or "127.0.0.1"
+    host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    return f"http://{host}:{os.environ.get('RGB2CLOUD_PORT') or 8000}"
+
+
 @dataclass
 class ClientOptions:
-    url: str = "http://127.0.0.1:8000"
+    url: str = field(default_factory=service_url)
     timeout_s: float = 60.0
     retries: int = 5
     concurrency: int = 1
@@ -77,15 +87,19 @@ def run(
             else:
                 jobs.append((image, kind, target))
     limits = httpx.Limits(max_connections=options.concurrency, max_keepalive_connections=options.concurrency)
+    left = {image: sum(job[0] == image for job in jobs) for image, _, _ in jobs}  # outputs still due per photo
     with (
         httpx.Client(base_url=options.url, timeout=options.timeout_s, transport=transport, limits=limits) as client,
         ThreadPoolExecutor(options.concurrency) as pool,
+        tqdm(total=len(left), desc="photos", unit="photo", disable=len(left) < 2) as bar,
     ):
         futures = {pool.submit(_one, client, image, kind, target, options): image for image, kind, target in jobs}
-        for future in tqdm(
-            as_completed(futures), total=len(futures), desc="images", unit="file", disable=len(jobs) < 2
-        ):
-            yield futures[future], future.result()
+        for future in as_completed(futures):
+            image = futures[future]
+            left[image] -= 1
+            if not left[image]:
+                bar.update()
+            yield image, future.result()
 
 
 def _one(client: httpx.Client, image: Path, kind: str, target: Path, options: ClientOptions) -> str:
@@ -93,6 +107,8 @@ def _one(client: httpx.Client, image: Path, kind: str, target: Path, options: Cl
     params = {**(options.params or {}), **((options.cloud_params or {}) if kind == "pointcloud" else {})}
     try:
         response = request_with_retries(client, route, image, options, params)
+    except httpx.TransportError as e:
+        return f"error: cannot reach the service at {options.url} ({type(e).__name__}: {e})"
     except httpx.HTTPError as e:
         return f"error: {type(e).__name__}: {e}"
     if response.status_code != 200:

@@ -132,7 +132,10 @@ def fit(
         ),
     ] = None,
     registry: Annotated[Path, typer.Option(help="registry to publish into")] = Path("weights"),
-    format: Annotated[str | None, typer.Option(help="folders | tum | 7scenes | nyu | csv (default: detected)")] = None,
+    format: Annotated[
+        str | None,
+        typer.Option(help="folders | tum | 7scenes | nyu | csv | rosbag | strayscanner | record3d (default: detected)"),
+    ] = None,
     fx: Annotated[float | None, typer.Option(help="focal length x in pixels (overrides intrinsics.json)")] = None,
     fy: Annotated[float | None, typer.Option(help="focal length y in pixels")] = None,
     cx: Annotated[float | None, typer.Option(help="principal point x in pixels")] = None,
@@ -144,6 +147,18 @@ def fit(
     gap: Annotated[
         int | None, typer.Option(help="frames dropped next to the held-out ones (default 5%)", min=0)
     ] = None,
+    color_topic: Annotated[str | None, typer.Option(help="a bag's colour image topic (default: found)")] = None,
+    depth_topic: Annotated[
+        str | None, typer.Option(help="a bag's depth image topic (default: found; aligned to colour preferred)")
+    ] = None,
+    max_gap_ms: Annotated[
+        float, typer.Option(help="a bag's colour and depth frames further apart than this are not a pair", min=0)
+    ] = 20.0,
+    min_confidence: Annotated[
+        int,
+        typer.Option(help="Stray Scanner, Record3D: keep depth pixels of this LiDAR confidence and up", min=0, max=2),
+    ] = 2,
+    every: Annotated[int, typer.Option(help="keep every Nth pair of a long recording", min=1)] = 1,
     register: Annotated[
         str, typer.Option(help="auto: register depth to colour when a fitted colour camera aligns better; yes; no")
     ] = "auto",
@@ -151,7 +166,9 @@ def fit(
     resume: Annotated[bool, typer.Option(help="continue an interrupted fit from its last checkpoint")] = False,
 ) -> None:
     """Fit a model of your space from a short RGB-D recording, score it honestly, and publish it."""
+    from app.client import service_url
     from trainer.data.folders import CameraFile
+    from trainer.fit.recording import ReadOptions
     from trainer.fit.workflow import FitOptions
     from trainer.fit.workflow import fit as run
 
@@ -161,11 +178,14 @@ def fit(
         data=data,
         name=name,
         licence=licence,
+        service_url=service_url(),
         budget_min=budget,
         start_from=from_,
         registry=registry,
         format=format,
-        camera=CameraFile(fx, fy, cx, cy, depth_scale),
+        read=ReadOptions(
+            CameraFile(fx, fy, cx, cy, depth_scale), color_topic, depth_topic, max_gap_ms / 1000, min_confidence, every
+        ),
         holdout=holdout,
         gap_frames=gap,
         registration=register,
@@ -226,7 +246,9 @@ def client(
     out: Annotated[Path | None, typer.Option("-o", "--out", help="output folder (default: beside each input)")] = None,
     depth: Annotated[bool, typer.Option(help="write <name>.depth.png (16-bit mm)")] = True,
     pointcloud: Annotated[bool, typer.Option(help="write <name>.ply")] = False,
-    url: Annotated[str, typer.Option(help="service base URL")] = "http://127.0.0.1:8000",
+    url: Annotated[
+        str | None, typer.Option(help="service base URL (default: RGB2CLOUD_HOST and RGB2CLOUD_PORT, as make serve)")
+    ] = None,
     timeout: Annotated[float, typer.Option(help="seconds per request")] = 60.0,
     retries: Annotated[int, typer.Option(help="retries on 503 or a dropped connection")] = 5,
     stride: Annotated[int, typer.Option(help="point cloud: keep every stride-th row and column")] = 1,
@@ -240,14 +262,14 @@ def client(
     ] = False,
 ) -> None:
     """Send images to a running service and save depth PNGs and/or PLY point clouds."""
-    from app.client import ClientOptions, run
+    from app.client import ClientOptions, run, service_url
 
     kinds = [k for k, on in (("depth", depth), ("pointcloud", pointcloud)) if on]
     if not kinds:
         raise typer.BadParameter("nothing to do: enable --depth and/or --pointcloud")
     params = {key: value for key, value in (("model", model), ("fx", fx)) if value is not None}
     options = ClientOptions(
-        url=url,
+        url=url or service_url(),
         timeout_s=timeout,
         retries=retries,
         concurrency=concurrency,

@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import httpx
 import numpy as np
 import pytest
-from conftest import TUM_FRAME, run_cli
+from conftest import REPO, TUM_FRAME, run_cli
 from PIL import Image
 from plyfile import PlyData
 
 from app.client import ClientOptions, run
-from harness.service import running_service
+from harness.service import free_port, running_service
 
 
 def _photos(folder, count=2):
@@ -25,10 +29,12 @@ def _photos(folder, count=2):
 def test_client_folder_against_the_real_service(registry, tmp_path):
     photos = _photos(tmp_path / "photos")
     with running_service(registry=str(registry), threads="1") as running:
-        url = running.url
-        result = run_cli(
-            "client", str(photos), "-o", str(tmp_path / "out"), "--pointcloud", "--url", url, "--stride", "2"
-        )
+        # No --url: the client finds the service from the same settings it was started with.
+        port = running.url.rsplit(":", 1)[1]
+        env = {**os.environ, "RGB2CLOUD_HOST": "0.0.0.0", "RGB2CLOUD_PORT": port}
+        command = [sys.executable, "-m", "cli", "client", str(photos), "-o", str(tmp_path / "out"), "--pointcloud"]
+        result = subprocess.run([*command, "--stride", "2"], cwd=REPO, env=env, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
     assert result.stdout.count("wrote") == 4
     for i in range(2):
         with Image.open(tmp_path / "out" / f"photo{i}.depth.png") as im:
@@ -50,6 +56,13 @@ def test_client_retries_503_then_succeeds(tmp_path):
     outcomes = list(run(photos, ["depth"], tmp_path / "out", ClientOptions(retries=5), httpx.MockTransport(handler)))
     assert calls == ["/depth"] * 3
     assert outcomes[0][1].startswith("wrote") and (tmp_path / "out" / "photo0.depth.png").read_bytes() == b"PNG"
+
+
+def test_an_unreachable_service_is_named_in_the_error(tmp_path):
+    photos = _photos(tmp_path / "photos", count=1)
+    url = f"http://127.0.0.1:{free_port()}"  # nothing listens there
+    outcomes = list(run(photos, ["depth"], None, ClientOptions(url=url, retries=0)))
+    assert outcomes[0][1].startswith(f"error: cannot reach the service at {url} (ConnectError")
 
 
 def test_client_reports_errors_and_gives_up_after_retries(tmp_path):

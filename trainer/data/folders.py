@@ -106,8 +106,10 @@ def find_pairs(root: Path, tolerance: float = PAIR_TOLERANCE) -> tuple[list[Pair
     """Every colour/depth pair in time order, and each colour image skipped with the reason."""
     root = Path(root)
     colours = colour_folder(root)
-    if colours is None or not (root / DEPTH_FOLDER).is_dir():
-        raise UserError(f"{root}: expected {'/, '.join(COLOUR_FOLDERS)}/ and {DEPTH_FOLDER}/ folders")
+    if colours is None:
+        raise UserError(f"{root}: no colour folder ({'/, '.join(COLOUR_FOLDERS)}/)")
+    if not (root / DEPTH_FOLDER).is_dir():
+        raise UserError(f"{root}: {colours.name}/ but no {DEPTH_FOLDER}/ folder: depth images go beside the photos")
     colour_files = {p.stem: p for p in colours.iterdir() if p.suffix.lower() in COLOUR_SUFFIXES}
     depth_files = {p.stem: p for p in (root / DEPTH_FOLDER).iterdir() if p.suffix.lower() in DEPTH_SUFFIXES}
     timed = sorted((t, stem) for stem in depth_files if (t := _number(stem)) is not None)

@@ -58,7 +58,8 @@ class Inspection:
 
     def lines(self) -> list[str]:
         """The short report ``fit`` prints."""
-        sizes = ", ".join(f"{w}x{h} ({n})" for (w, h), n in self.sizes.most_common())
+        sampled = sum(self.sizes.values())
+        sizes = ", ".join(f"{w}x{h} ({n} of {sampled} sampled frames)" for (w, h), n in self.sizes.most_common())
         out = [f"pairs: {self.pairs} found, {len(self.skipped)} skipped"]
         out += [f"  skipped {name}: {why}" for name, why in self.skipped[:10]]
         if len(self.skipped) > 10:

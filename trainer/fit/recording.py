@@ -2,26 +2,30 @@
 
 ``fit`` writes its splits as CSV manifests of these pairs (``trainer.data.manifest``),
 so the trainer reads every layout the same way and the split is a file anyone can open.
-NYU's ``.mat`` holds arrays, not files: its frames are written out as PNGs first.
+NYU's ``.mat`` and ROS bags hold arrays and messages, not files: their frames are written
+out as images first (a bag's depth already moved into its colour camera).
 """
 
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
 from contract.errors import UserError
-from trainer.data.folders import CameraFile, find_pairs, is_folders_layout, read_intrinsics_json
+from trainer.data.folders import CameraFile, colour_folder, find_pairs, is_folders_layout, read_intrinsics_json
 from trainer.data.manifest import COLUMNS, ManifestReader
 from trainer.data.nyu import NyuReader
+from trainer.data.record3d import is_record3d, read_record3d
+from trainer.data.rosbag import DEFAULT_MAX_GAP_S, DEPTH_SCALE, is_bag, read_bag
 from trainer.data.sevenscenes import SevenScenesReader
+from trainer.data.strayscanner import DEFAULT_MIN_CONFIDENCE, is_stray_scanner, read_stray_scanner
 from trainer.data.tum import DEPTH_UNITS_PER_METRE, TumReader
 
-FORMATS = ("folders", "tum", "7scenes", "nyu", "csv")
+FORMATS = ("folders", "tum", "7scenes", "nyu", "csv", "rosbag", "strayscanner", "record3d")
 
 
 @dataclass(frozen=True)
@@ -47,6 +51,20 @@ class Recording:
     pairs: list[RecordedPair]
     skipped: list[tuple[str, str]]
     licence: str | None
+    #: What the reader found that a user should see (a bag's topics, rates, pairing gaps, registration).
+    notes: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """How to read a recording beyond its layout: the camera, a bag's topics and pairing, thinning."""
+
+    camera: CameraFile = field(default_factory=CameraFile)
+    color_topic: str | None = None
+    depth_topic: str | None = None
+    max_gap_s: float = DEFAULT_MAX_GAP_S
+    min_confidence: int = DEFAULT_MIN_CONFIDENCE
+    every: int = 1
 
 
 def detect_format(root: Path) -> str:
@@ -54,14 +72,26 @@ def detect_format(root: Path) -> str:
     root = Path(root)
     if not root.exists():
         raise UserError(f"{root}: no such file or folder")
+    if is_bag(root):
+        return "rosbag"
+    if is_stray_scanner(root):
+        return "strayscanner"
+    if is_record3d(root):
+        return "record3d"
     if root.is_file():
         if root.suffix == ".csv":
             return "csv"
         if root.suffix == ".mat":
             return "nyu"
-        raise UserError(f"{root}: a file, but not a .csv manifest or an NYU .mat")
+        raise UserError(
+            f"{root}: a file, but not a .csv manifest, an NYU .mat, a ROS bag (.bag, .mcap, .db3) or a Record3D .r3d"
+        )
     if is_folders_layout(root):
         return "folders"
+    if (colours := colour_folder(root)) is not None:
+        raise UserError(
+            f"{root}: {colours.name}/ but no depth/ folder: fit needs depth images (16-bit PNG) beside the photos"
+        )
     if (root / "rgb.txt").is_file() and (root / "depth.txt").is_file():
         return "tum"
     if any(root.glob("frame-*.color.*")):
@@ -70,19 +100,32 @@ def detect_format(root: Path) -> str:
     raise UserError(
         f"{root}: cannot tell its layout (found {', '.join(found) or 'nothing'}); expected color/ (or rgb/, "
         "image/) and depth/ folders, a TUM sequence (rgb.txt, depth.txt), 7-Scenes frame-NNNNNN.color.jpg "
-        "files, a .csv manifest or an NYU .mat; or pass --format"
+        "files, a ROS 2 bag folder (metadata.yaml), a .csv manifest or an NYU .mat; or pass --format"
     )
 
 
-def open_recording(root: Path, format: str | None, camera: CameraFile, scratch: Path) -> Recording:
-    """Every pair of the recording at ``root``; ``camera`` overrides its intrinsics and depth scale.
+def open_recording(root: Path, format: str | None, options: ReadOptions, scratch: Path) -> Recording:
+    """Every ``options.every``-th pair of the recording at ``root``; ``options.camera`` overrides its
+    intrinsics and depth scale.
 
-    ``scratch`` is where NYU's frames are written out as files.
+    ``scratch`` is where NYU's and a bag's frames are written out as files.
     """
     root = Path(root)
     format = format or detect_format(root)
     if format not in FORMATS:
         raise UserError(f"--format {format!r}: expected one of {', '.join(FORMATS)}")
+    if format == "rosbag":
+        return _rosbag(root, options, scratch)
+    if format in ("strayscanner", "record3d"):
+        return _phone(root, format, options, scratch)
+    recording = _open(root, format, options.camera, scratch)
+    if options.every > 1:
+        recording.pairs = recording.pairs[:: options.every]
+        recording.notes.append(f"every {options.every}th pair kept: {len(recording.pairs)}")
+    return recording
+
+
+def _open(root: Path, format: str, camera: CameraFile, scratch: Path) -> Recording:
     if format == "folders":
         return _folders(root, camera)
     if format == "csv":
@@ -120,6 +163,28 @@ def _pair(name: str, rgb: Path, depth: Path, camera: CameraFile, root: Path) -> 
         )
     scale = camera.depth_scale if camera.depth_scale is not None else 1000.0
     return RecordedPair(name, rgb.resolve(), depth.resolve(), scale, camera.fx, camera.fy, camera.cx, camera.cy)
+
+
+def _rosbag(root: Path, options: ReadOptions, scratch: Path) -> Recording:
+    bag = read_bag(
+        root, scratch / "bag-frames", options.color_topic, options.depth_topic, options.max_gap_s, options.every
+    )
+    recorded = CameraFile(bag.camera.fx, bag.camera.fy, bag.camera.cx, bag.camera.cy, None)
+    k = recorded.merged(options.camera)
+    own = CameraFile(k.fx, k.fy, k.cx, k.cy, DEPTH_SCALE)  # the frames were written in millimetres
+    pairs = [_pair(name, rgb, depth, own, root) for name, rgb, depth in bag.pairs]
+    return Recording(root, "rosbag", pairs, bag.skipped, None, bag.notes)
+
+
+def _phone(root: Path, format: str, options: ReadOptions, scratch: Path) -> Recording:
+    """A phone LiDAR recording (Stray Scanner or Record3D), its frames written out in the colour camera."""
+    read = read_stray_scanner if format == "strayscanner" else read_record3d
+    scan = read(root, scratch / f"{format}-frames", options.every, options.min_confidence)
+    recorded = CameraFile(scan.camera.fx, scan.camera.fy, scan.camera.cx, scan.camera.cy, None)
+    k = recorded.merged(options.camera)
+    own = CameraFile(k.fx, k.fy, k.cx, k.cy, 1000.0)  # the frames were written in millimetres
+    pairs = [_pair(name, rgb, depth, own, root) for name, rgb, depth in scan.pairs]
+    return Recording(root, format, pairs, scan.skipped, None, scan.notes)
 
 
 def _folders(root: Path, camera: CameraFile) -> Recording:

@@ -18,16 +18,15 @@ from typing import Any
 from pydantic import BaseModel, Field
 from tqdm import tqdm
 
-from contract.card import DataRef, FitRecord, list_versions, load_card, next_version
+from contract.card import DataRef, FitRecord, ModelCard, list_versions, load_card, next_version
 from contract.errors import UserError
 from contract.geometry import ColourCamera
 from contract.spec import GeneratorSpec
 from trainer.config import DataSource, RunConfig, migrate_config
-from trainer.data.folders import CameraFile
 from trainer.data.manifest import ManifestReader
 from trainer.fit.budget import Plan, Workload, measure_seconds, plan_training
 from trainer.fit.inspect import inspect_recording, read_pair
-from trainer.fit.recording import Recording, open_recording, write_manifest
+from trainer.fit.recording import ReadOptions, Recording, open_recording, write_manifest
 from trainer.fit.scoring import score_holdout
 from trainer.fit.split import Split, split_recording
 
@@ -44,11 +43,13 @@ class FitOptions:
     data: Path
     name: str
     licence: str
+    #: Where the service is reached (the CLI reads the service's own host and port settings).
+    service_url: str
     budget_min: float = 30.0
     start_from: str | None = None  # a published version folder, "scratch", or None for the bundled base model
     registry: Path = Path("weights")
     format: str | None = None
-    camera: CameraFile = field(default_factory=CameraFile)
+    read: ReadOptions = field(default_factory=ReadOptions)
     holdout: str | None = None
     gap_frames: int | None = None
     registration: str = "auto"
@@ -72,6 +73,8 @@ class FitState(BaseModel):
     colour_camera: ColourCamera | None
     plan: Plan
     config: RunConfig
+    #: The version folder this fit published, once it has: a finished fit is never resumed into a second one.
+    published: str | None = None
 
     @property
     def start(self) -> Path | None:
@@ -110,7 +113,7 @@ class Progress:
 
     def __init__(self, budget_s: float, started: float):
         self.started = started
-        fmt = "{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]"
+        fmt = "{desc}{percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]"  # desc ends ": "
         self.bar = tqdm(total=round(budget_s), desc="reading", bar_format=fmt, dynamic_ncols=True)
 
     def phase(self, name: str) -> None:
@@ -124,7 +127,14 @@ class Progress:
     def say(self, line: str) -> None:
         self.bar.write(line)
 
+    def finish(self) -> None:
+        """The command is done: the bar ends full, at the seconds it took (within the budget, or past it)."""
+        self.tick()
+        self.bar.total = max(1, self.bar.n)
+        self.bar.set_description("done")
+
     def close(self) -> None:
+        """Stop the bar where the command ended (full when it finished), before anything else is printed."""
         self.tick()
         self.bar.close()
 
@@ -140,27 +150,38 @@ def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
         raise UserError(f"{run}: a fit is already there; add --resume to continue it, or pass --out elsewhere")
     if not options.licence.strip():
         raise UserError("--licence is required: the terms under which the recording may be used")
+    state = FitState.model_validate_json(state_file.read_text()) if options.resume else None
+    if state is not None and state.published:
+        raise UserError(
+            f"{run}: this fit finished and published {state.published}; there is nothing to resume "
+            "(for another model, run fit with another --name or --out)"
+        )
     progress = Progress(options.budget_min * 60, started)
     try:
-        if options.resume:
-            state = FitState.model_validate_json(state_file.read_text())
+        if state is not None:
             for line in state.report:
                 progress.say(line)
         else:
             state = _prepare(options, run, progress, started)
             state_file.write_text(state.model_dump_json(indent=2) + "\n")
-        return _train_score_publish(options, state, progress, echo)
+        target = _train_score_publish(options, state, progress)
+        state.published = str(target)
+        state_file.write_text(state.model_dump_json(indent=2) + "\n")
+        progress.finish()
     finally:
         progress.close()
+    for line in _serve_lines(options.registry, options.name, target.name, options.service_url):
+        echo(line)
+    return target
 
 
 def _prepare(options: FitOptions, run: Path, progress: Progress, started: float) -> FitState:
     """Everything decided before training: the data checked and split, the config, the plan."""
-    recording = open_recording(options.data, options.format, options.camera, run)
+    recording = open_recording(options.data, options.format, options.read, run)
     progress.phase("inspecting")
     inspection = inspect_recording(recording, registration=options.registration)
     split = split_recording(recording.pairs, options.holdout, options.gap_frames)
-    report = [f"{recording.root} ({recording.format})", *inspection.lines(), split.line()]
+    report = [f"{recording.root} ({recording.format})", *recording.notes, *inspection.lines(), split.line()]
     for line in report:
         progress.say(line)
     start = options.start_from
@@ -237,7 +258,7 @@ def _run_config(
     return RunConfig.model_validate(tree)
 
 
-def _train_score_publish(options: FitOptions, state: FitState, progress: Progress, echo) -> Path:
+def _train_score_publish(options: FitOptions, state: FitState, progress: Progress) -> Path:
     from trainer.export import export_and_publish
     from trainer.train import train
 
@@ -262,23 +283,32 @@ def _train_score_publish(options: FitOptions, state: FitState, progress: Progres
 
     progress.phase("publishing")
     version = next_version(options.registry, options.name)
+    start = load_card(state.start) if state.start else None
     record = FitRecord(
         data=state.data,
         start_from=state.start_from,
+        start_model=f"{start.name} {start.version}" if start else None,
         budget_min=options.budget_min,
         split=state.split,
         registered_with=state.colour_camera,
     )
     frames = sum(part["frames"] for part in state.split.values())
     data = [DataRef(name=Path(state.data).name, format=state.format, frames=f"{frames} pairs", licence=state.licence)]
+    data += lineage(start) if start else []
     parity_image = Path(ManifestReader(holdout.root).rows[0][0])  # the manifest holds absolute paths
     target = export_and_publish(
         checkpoint, options.registry, options.name, version, metrics, parity_image, data=data, fit=record
     )
     progress.say(f"published {target}")
-    for line in _serve_lines(options.registry, options.name, version):
-        echo(line)
+    progress.say(f"run folder (config, checkpoints, split manifests): {options.run_dir}")
     return target
+
+
+def lineage(start: ModelCard) -> list[DataRef]:
+    """Every dataset behind a starting model, marked with the model it came through: its weights carry them all,
+    and with them their licences (a fit from the kitchen model is bound by 7-Scenes' non-commercial terms)."""
+    via = f"{start.name} {start.version}"
+    return [ref.model_copy(update={"via": ref.via or via}) for ref in start.training.data]
 
 
 def _checkpoint_step(path: Path) -> int:
@@ -289,12 +319,12 @@ def _checkpoint_step(path: Path) -> int:
     return load_checkpoint(path).step
 
 
-def _serve_lines(registry: Path, name: str, version: str) -> list[str]:
+def _serve_lines(registry: Path, name: str, version: str, url: str) -> list[str]:
     return [
         "",
         f"A service running on {registry} serves it now, without a restart:",
-        f'  curl -sS -F image=@photo.jpg "http://127.0.0.1:8000/depth?model={name}:{version}" -o depth.png',
-        f'  curl -sS -F image=@photo.jpg "http://127.0.0.1:8000/pointcloud?model={name}:{version}" -o cloud.ply',
+        f'  curl -sS -F image=@photo.jpg "{url}/depth?model={name}:{version}" -o depth.png',
+        f'  curl -sS -F image=@photo.jpg "{url}/pointcloud?model={name}:{version}" -o cloud.ply',
         "Or start one with it as the default model:",
         f"  RGB2CLOUD_REGISTRY={registry} RGB2CLOUD_MODEL={name}:{version} make serve",
     ]
