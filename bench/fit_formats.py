@@ -1,27 +1,26 @@
-"""Does the format a recording comes in change what fit makes of it? One site as folders and as a ROS 2 bag.
+"""Does the format a recording comes in change what fit makes of it? One site as folders, a ROS 2 bag, a phone export.
 
     python bench/fit_formats.py [--budget 5] [--markdown runs/bench-formats/table.md]
 
 mosd-tabletop's 107 captures are written into a ROS 2 bag (sqlite3) as the RealSense ROS wrapper
 records them (colour ``rgb8``, depth ``16UC1`` aligned to colour, a ``CameraInfo`` each, 30 fps,
-depth stamped 3 ms after colour) with ``rosbags``' own writer. Both the folders layout and the
-bag are fitted with the same budget and split: in time order the 45 ``learn*`` captures come
-first, so ``--holdout 45-106 --gap 0`` holds out the 62 ``test*`` captures in both. Fit's own
-held-out table is read from each published card.
+depth stamped 3 ms after colour) with ``rosbags``' own writer, and into a Stray Scanner export
+(the video encoded with PyAV, depth at the app's 256x192). All three are fitted with the same
+budget and split: in time order the 45 ``learn*`` captures come first, so ``--holdout 45-106
+--gap 0`` holds out the 62 ``test*`` captures in each. Fit's own held-out table is read from each
+published card (scored against each recording's own depth).
 """
 
 from __future__ import annotations
 
-import argparse
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
 from contract.card import load_card
-from harness.recordings import write_aligned_bag
+from harness.fitting import bench_arguments, fit_once, report
+from harness.recordings import MOSD_CAMERA, write_aligned_bag, write_stray_scanner
 from trainer.machine import cpu_description
 
 REPO = Path(__file__).resolve().parents[1]
@@ -30,39 +29,40 @@ LICENCE = "mOSD (Richtsfeld et al., TU Wien): research use"
 OUT = REPO / "runs" / "bench-formats"
 
 
+def site_frames() -> list[tuple[np.ndarray, np.ndarray]]:
+    """The site's captures in name order (learn* before test*): (rgb, depth in millimetres)."""
+    colours = sorted((SITE / "color").glob("*.jpg"))
+    return [
+        (np.asarray(Image.open(c).convert("RGB")), np.asarray(Image.open(SITE / "depth" / f"{c.stem}.png")))
+        for c in colours
+    ]
+
+
 def site_bag(path: Path) -> Path:
-    """The site's captures in name order (learn* before test*) as a ROS 2 bag, written once."""
+    """The site's captures in name order as a ROS 2 bag, written once."""
     if not path.exists():
-        frames = [
-            (
-                np.asarray(Image.open(colour).convert("RGB")),
-                np.asarray(Image.open(SITE / "depth" / f"{colour.stem}.png")),
-            )
-            for colour in sorted((SITE / "color").glob("*.jpg"))
-        ]
-        write_aligned_bag(path, "ros2", frames)
+        write_aligned_bag(path, "ros2", site_frames())
     return path
 
 
-def fit(recording: Path, name: str, budget: float) -> Path:
-    version = OUT / "registry" / name / "0.1.0"
-    if not version.is_dir():
-        args = [str(recording), "--holdout", "45-106", "--gap", "0", "--licence", LICENCE, "--name", name]
-        args += ["--budget", f"{budget:g}", "--register", "no", "--registry", str(OUT / "registry")]
-        args += ["--out", str(OUT / "runs" / name)]
-        subprocess.run([sys.executable, "-m", "cli", "fit", *args], cwd=REPO, check=True)
-    return version
+def site_scan(path: Path) -> Path:
+    """The site's captures in name order as a Stray Scanner export (640x480 video, 256x192 depth), written once."""
+    if not path.exists():
+        write_stray_scanner(path, site_frames(), MOSD_CAMERA)
+    return path
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--budget", type=float, default=5.0)
-    parser.add_argument("--markdown", type=Path, help="also write the table here")
-    args = parser.parse_args()
-    recordings = {"folders (color/, depth/, intrinsics.json)": SITE, "ROS 2 bag (sqlite3)": site_bag(OUT / "bag")}
+    args = bench_arguments(__doc__)
+    recordings = {
+        "folders (color/, depth/, intrinsics.json)": SITE,
+        "ROS 2 bag (sqlite3)": site_bag(OUT / "bag"),
+        "Stray Scanner export (rgb.mp4, 256x192 depth)": site_scan(OUT / "scan"),
+    }
+    options = [*f"--holdout 45-106 --gap 0 --budget {args.budget:g} --register no".split(), "--licence", LICENCE]
     rows = []
     for i, (label, recording) in enumerate(recordings.items()):
-        card = load_card(fit(recording, f"mosd-format-{i}-{args.budget:g}min", args.budget))
+        card = load_card(fit_once(recording, f"mosd-format-{i}-{args.budget:g}min", OUT, *options))
         own = card.metrics[0]
         rows.append(
             f"| {label} | {card.training.steps} | {own.images} | {own.delta1:.3f} | {own.rel:.3f} | "
@@ -71,15 +71,10 @@ def main() -> None:
     table = (
         f"Machine: {cpu_description()}. mosd-tabletop, {args.budget:g}-minute fits, held out: the 62 `test*` "
         "captures (fit's own table, from each card).\n\n"
-        "| recording | steps | held-out frames | δ1 | REL | PC RMSE (m) |\n|---|---|---|---|---|---|\n"
-        + "\n".join(rows)
-        + "\n"
+        "| recording | steps (the published checkpoint) | held-out frames | δ1 | REL | PC RMSE (m) |\n"
+        "|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n"
     )
-    print(table)
-    if args.markdown:
-        args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        command = f"python bench/fit_formats.py --budget {args.budget:g}"
-        args.markdown.write_text(f"# A recording's format\n\nMade by `{command}`.\n\n{table}")
+    report(table, args.markdown, "A recording's format", f"python bench/fit_formats.py --budget {args.budget:g}")
 
 
 if __name__ == "__main__":

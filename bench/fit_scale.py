@@ -14,11 +14,8 @@ the service must feed its model photos at exactly that scale, so the two rows sh
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import httpx
@@ -27,6 +24,7 @@ from PIL import Image
 
 from contract.card import load_card
 from contract.geometry import Intrinsics
+from harness.fitting import bench_arguments, fit_once, report
 from harness.service import running_service
 from trainer.data.frames import read_depth_png
 from trainer.machine import cpu_description
@@ -58,17 +56,6 @@ def enlarged_copy(target: Path, factor: int) -> Intrinsics:
     return camera
 
 
-def fit(root: Path, name: str, budget: float) -> Path:
-    """``rgb2cloud fit`` of ``root`` in its own process; the published version folder."""
-    version = OUT / "registry" / name / "0.1.0"
-    if not version.is_dir():
-        args = [str(root), "--holdout", "test*", "--gap", "0", "--licence", LICENCE, "--name", name]
-        args += ["--budget", f"{budget:g}", "--register", "no", "--registry", str(OUT / "registry")]
-        args += ["--out", str(OUT / "runs" / name)]
-        subprocess.run([sys.executable, "-m", "cli", "fit", *args], cwd=REPO, check=True)
-    return version
-
-
 def served_scores(url: str, model: str, root: Path, camera: Intrinsics) -> dict[str, float]:
     """The held-out photos of ``root`` through the service at their own size and focal length."""
     scores, ratios = MetricAccumulator(), set()
@@ -86,10 +73,7 @@ def served_scores(url: str, model: str, root: Path, camera: Intrinsics) -> dict[
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--budget", type=float, default=5.0)
-    parser.add_argument("--markdown", type=Path, help="also write the table here")
-    args = parser.parse_args()
+    args = bench_arguments(__doc__)
 
     enlarged = OUT / "mosd-tabletop-1280x960"
     recordings = {
@@ -97,7 +81,8 @@ def main() -> None:
         "1280x960 (enlarged 2x)": (enlarged, enlarged_copy(enlarged, 2)),
     }
     names = {label: f"mosd-{k.width}x{k.height}-{args.budget:g}min" for label, (_, k) in recordings.items()}
-    versions = {label: fit(root, names[label], args.budget) for label, (root, _) in recordings.items()}
+    options = [*f"--holdout test* --gap 0 --budget {args.budget:g} --register no".split(), "--licence", LICENCE]
+    versions = {label: fit_once(root, names[label], OUT, *options) for label, (root, _) in recordings.items()}
     rows = []
     with running_service(registry=str(OUT / "registry"), model=f"{names['640x480 (as recorded)']}:0.1.0") as service:
         for label, (root, camera) in recordings.items():
@@ -111,14 +96,11 @@ def main() -> None:
             )
     table = (
         f"Machine: {cpu_description()}. mosd-tabletop, {args.budget:g}-minute fits, 62 held-out `test*` captures.\n\n"
-        "| recording | card camera (trained at) | steps | fit's table δ1 / REL | served δ1 / REL | X-Focal-Ratio |\n"
+        "| recording | card camera (trained at) | steps (the published checkpoint) | fit's table δ1 / REL | "
+        "served δ1 / REL | X-Focal-Ratio |\n"
         "|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n"
     )
-    print(table)
-    if args.markdown:
-        args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        command = f"python bench/fit_scale.py --budget {args.budget:g}"
-        args.markdown.write_text(f"# A recording's resolution\n\nMade by `{command}`.\n\n{table}")
+    report(table, args.markdown, "A recording's resolution", f"python bench/fit_scale.py --budget {args.budget:g}")
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
@@ -24,6 +24,21 @@ class Frame:
     depth: np.ndarray
     intrinsics: Intrinsics
     name: str
+
+
+@dataclass
+class WrittenPairs:
+    """A recording whose frames a reader wrote out as files (a bag's messages, a phone's video and depth maps).
+
+    ``pairs`` are (name, colour file, depth file in 16-bit millimetres) in time order, the depth
+    already in ``camera``, the colour camera; ``skipped`` says which frames were left out and why,
+    and ``notes`` what the reader found, for a user to see.
+    """
+
+    pairs: list[tuple[str, Path, Path]]
+    camera: Intrinsics
+    skipped: list[tuple[str, str]]
+    notes: list[str] = field(default_factory=list)
 
 
 class FrameReader(Protocol):

@@ -24,7 +24,7 @@ from __future__ import annotations
 import io
 import statistics
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -34,6 +34,7 @@ from PIL import Image
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
+from trainer.data.frames import WrittenPairs
 from trainer.data.rosbag_extrinsics import depth_to_colour_extrinsics
 from trainer.registration import reproject_depth
 
@@ -86,16 +87,6 @@ class Geometry:
         return not (identity and _same_camera(self.depth_camera, self.colour_camera))
 
 
-@dataclass
-class BagPairs:
-    """A bag read into pairs on disk: (name, colour file, depth file in millimetres), in time order."""
-
-    pairs: list[tuple[str, Path, Path]]
-    camera: Intrinsics
-    skipped: list[tuple[str, str]]
-    notes: list[str] = field(default_factory=list)
-
-
 def is_bag(path: Path) -> bool:
     """A ROS 1 bag, an MCAP file, or a ROS 2 bag folder (``metadata.yaml`` with its storage files)."""
     path = Path(path)
@@ -119,7 +110,7 @@ def read_bag(
     depth_topic: str | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
     every: int = 1,
-) -> BagPairs:
+) -> WrittenPairs:
     """The bag's colour frames with their nearest depth, depth in the colour camera, written under ``out_dir``."""
     from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.typesys import Stores, get_typestore
@@ -132,7 +123,7 @@ def read_bag(
         raise UserError(f"{path}: not a readable ROS bag: {e}") from None
 
 
-def _read(reader: Any, path: Path, out: Path, color_topic, depth_topic, max_gap_s, every) -> BagPairs:
+def _read(reader: Any, path: Path, out: Path, color_topic, depth_topic, max_gap_s, every) -> WrittenPairs:
     streams = _streams(reader)
     colour = _choose(path, streams, color_topic, "colour", lambda s: s.is_colour, ("color", "colour", "rgb"))
     depth = _choose(path, streams, depth_topic, "depth", lambda s: s.is_depth, ("aligned_depth_to_color", "depth"))
@@ -167,7 +158,7 @@ def _read(reader: Any, path: Path, out: Path, color_topic, depth_topic, max_gap_
         + f", gap median {statistics.median(gaps_ms):.1f} ms, max {max(gaps_ms):.1f} ms",
         f"registration: {how}",
     ]
-    return BagPairs(pairs, colour_camera, skipped, notes)
+    return WrittenPairs(pairs, colour_camera, skipped, notes)
 
 
 def _streams(reader: Any) -> list[Stream]:

@@ -19,7 +19,6 @@ surface, and no depth invented across a step.
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -27,22 +26,13 @@ from PIL import Image
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
+from trainer.data.frames import WrittenPairs
 from trainer.registration import upsample_depth
 
 #: Frames are written at most this many pixels: more than fit trains at (640x480), less than the video.
 MAX_WRITTEN_PIXELS = 1280 * 960
 #: Depth pixels of lower confidence are dropped by default: ARKit's 2 is "high".
 DEFAULT_MIN_CONFIDENCE = 2
-
-
-@dataclass
-class ScanPairs:
-    """A Stray Scanner folder read into pairs on disk: (name, colour file, depth file in millimetres)."""
-
-    pairs: list[tuple[str, Path, Path]]
-    camera: Intrinsics
-    skipped: list[tuple[str, str]]
-    notes: list[str] = field(default_factory=list)
 
 
 def is_stray_scanner(root: Path) -> bool:
@@ -81,7 +71,7 @@ def read_frame_times(path: Path) -> dict[int, float]:
 
 def read_stray_scanner(
     root: Path, out: Path, every: int = 1, min_confidence: int = DEFAULT_MIN_CONFIDENCE
-) -> ScanPairs:
+) -> WrittenPairs:
     """Every ``every``-th frame with depth, written under ``out`` as colour JPEG and 16-bit millimetre PNG."""
     root, out = Path(root), Path(out)
     matrix = read_camera_matrix(root / "camera_matrix.csv")
@@ -116,7 +106,7 @@ def read_stray_scanner(
         f"depth: confidence {min_confidence} and up kept, {100 * float(np.mean(kept_share)):.0f}% of depth pixels; "
         f"upsampled from {metres.shape[1]}x{metres.shape[0]} without blending across depth steps",
     ]
-    return ScanPairs(pairs, camera, skipped, notes)
+    return WrittenPairs(pairs, camera, skipped, notes)
 
 
 def _camera(matrix: np.ndarray, width: int, height: int) -> Intrinsics:

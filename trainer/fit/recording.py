@@ -114,10 +114,8 @@ def open_recording(root: Path, format: str | None, options: ReadOptions, scratch
     format = format or detect_format(root)
     if format not in FORMATS:
         raise UserError(f"--format {format!r}: expected one of {', '.join(FORMATS)}")
-    if format == "rosbag":
-        return _rosbag(root, options, scratch)
-    if format in ("strayscanner", "record3d"):
-        return _phone(root, format, options, scratch)
+    if format in ("rosbag", "strayscanner", "record3d"):
+        return _written(root, format, options, scratch)
     recording = _open(root, format, options.camera, scratch)
     if options.every > 1:
         recording.pairs = recording.pairs[:: options.every]
@@ -165,26 +163,19 @@ def _pair(name: str, rgb: Path, depth: Path, camera: CameraFile, root: Path) -> 
     return RecordedPair(name, rgb.resolve(), depth.resolve(), scale, camera.fx, camera.fy, camera.cx, camera.cy)
 
 
-def _rosbag(root: Path, options: ReadOptions, scratch: Path) -> Recording:
-    bag = read_bag(
-        root, scratch / "bag-frames", options.color_topic, options.depth_topic, options.max_gap_s, options.every
-    )
-    recorded = CameraFile(bag.camera.fx, bag.camera.fy, bag.camera.cx, bag.camera.cy, None)
-    k = recorded.merged(options.camera)
+def _written(root: Path, format: str, options: ReadOptions, scratch: Path) -> Recording:
+    """A recording whose reader writes its frames out first: a ROS bag, a Stray Scanner or Record3D export."""
+    out = scratch / f"{format}-frames"
+    if format == "rosbag":
+        written = read_bag(root, out, options.color_topic, options.depth_topic, options.max_gap_s, options.every)
+    else:
+        read = read_stray_scanner if format == "strayscanner" else read_record3d
+        written = read(root, out, options.every, options.min_confidence)
+    k = CameraFile(written.camera.fx, written.camera.fy, written.camera.cx, written.camera.cy, None)
+    k = k.merged(options.camera)
     own = CameraFile(k.fx, k.fy, k.cx, k.cy, DEPTH_SCALE)  # the frames were written in millimetres
-    pairs = [_pair(name, rgb, depth, own, root) for name, rgb, depth in bag.pairs]
-    return Recording(root, "rosbag", pairs, bag.skipped, None, bag.notes)
-
-
-def _phone(root: Path, format: str, options: ReadOptions, scratch: Path) -> Recording:
-    """A phone LiDAR recording (Stray Scanner or Record3D), its frames written out in the colour camera."""
-    read = read_stray_scanner if format == "strayscanner" else read_record3d
-    scan = read(root, scratch / f"{format}-frames", options.every, options.min_confidence)
-    recorded = CameraFile(scan.camera.fx, scan.camera.fy, scan.camera.cx, scan.camera.cy, None)
-    k = recorded.merged(options.camera)
-    own = CameraFile(k.fx, k.fy, k.cx, k.cy, 1000.0)  # the frames were written in millimetres
-    pairs = [_pair(name, rgb, depth, own, root) for name, rgb, depth in scan.pairs]
-    return Recording(root, format, pairs, scan.skipped, None, scan.notes)
+    pairs = [_pair(name, rgb, depth, own, root) for name, rgb, depth in written.pairs]
+    return Recording(root, format, pairs, written.skipped, None, written.notes)
 
 
 def _folders(root: Path, camera: CameraFile) -> Recording:
