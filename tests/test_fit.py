@@ -142,6 +142,10 @@ from trainer.fit.budget import Plan
 
 last, *sys.argv[1:] = sys.argv[1:]
 tick = workflow.Progress.tick
+# Ctrl-C as a terminal delivers it, even where this process was started with SIGINT ignored (a
+# background job of a non-interactive shell, as CI runners start them): Python then installs no
+# handler of its own, and the signal would be dropped.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def fixed_plan(budget_s, spent_s, step_s, work):
