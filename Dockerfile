@@ -1,4 +1,5 @@
 # The serving image: slim Python, the contract and the service only (no torch), the bundled model.
+# Mount your own registry (what fit publishes) at /models; the bundled models are served beside it.
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
@@ -6,7 +7,8 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     PIP_NO_CACHE_DIR=1 \
     RGB2CLOUD_HOST=0.0.0.0 \
     RGB2CLOUD_PORT=8000 \
-    RGB2CLOUD_REGISTRY=weights \
+    RGB2CLOUD_REGISTRY=/models \
+    RGB2CLOUD_BUNDLED_REGISTRY=weights \
     RGB2CLOUD_MODEL=rgb2cloud-7scenes
 
 WORKDIR /srv/rgb2cloud

@@ -42,11 +42,10 @@ test: lint system-packages
 test-quick: lint system-packages
 	$(PY) -m pytest -m "not slow"
 
-# The service on 127.0.0.1:8000 with the bundled default model (weights/); RGB2CLOUD_* overrides.
-# fit publishes into weights/ unless told otherwise, so the registry may hold several models: the
-# kitchen model stays the default unless RGB2CLOUD_MODEL (or another RGB2CLOUD_REGISTRY) says otherwise.
+# The service on 127.0.0.1:8000 with the bundled default model (weights/), and the models fit published
+# (RGB2CLOUD_REGISTRY, default ~/.local/share/rgb2cloud/models) beside it; RGB2CLOUD_* overrides.
 serve: $(SERVE_INSTALLED)
-	$(if $(RGB2CLOUD_REGISTRY)$(RGB2CLOUD_MODEL),,RGB2CLOUD_MODEL=rgb2cloud-7scenes) $(SERVE_VENV)/bin/python -m app
+	$(SERVE_VENV)/bin/python -m app
 
 openapi: $(INSTALLED)
 	$(PY) -m app.openapi

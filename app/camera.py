@@ -25,7 +25,6 @@ from typing import Literal
 
 from PIL import ExifTags, Image
 
-from contract.card import Camera
 from contract.geometry import Intrinsics
 
 Source = Literal["query", "exif", "model"]
@@ -101,7 +100,7 @@ def exif_focal(image: Image.Image) -> tuple[float, float] | None:
 
 
 def photo_camera(
-    model: Camera, width: int, height: int, query: CameraQuery, exif: tuple[float, float] | None
+    model: Intrinsics, width: int, height: int, query: CameraQuery, exif: tuple[float, float] | None
 ) -> PhotoCamera:
     """The photo's camera: the focal length from the query, its EXIF or the model, in that order."""
     source: Source
@@ -114,12 +113,13 @@ def photo_camera(
     else:
         scale = max(width, height) / max(model.width, model.height)
         fx, fy, source = model.fx * scale, model.fy * scale, "model"
-    cx = query.cx if query.cx is not None else (model.cx + 0.5) * width / model.width - 0.5
-    cy = query.cy if query.cy is not None else (model.cy + 0.5) * height / model.height - 0.5
+    centred = model.resized(width, height)
+    cx = query.cx if query.cx is not None else centred.cx
+    cy = query.cy if query.cy is not None else centred.cy
     return PhotoCamera(Intrinsics(fx, fy, cx, cy, width, height), source)
 
 
-def generator_size(camera: Intrinsics, model: Camera, max_pixels: int) -> tuple[int, int]:
+def generator_size(camera: Intrinsics, model: Intrinsics, max_pixels: int) -> tuple[int, int]:
     """(width, height) at which the photo has the model's focal length, shrunk to ``max_pixels`` if over."""
     width = camera.width * model.fx / camera.fx
     height = camera.height * model.fy / camera.fy

@@ -1,4 +1,5 @@
-"""Every model in the registry, served by name: loaded on first use, a bounded number kept, newest followed.
+"""Every model in the registries, the user's and the bundled one, served by name: loaded on first use,
+a bounded number kept, newest followed.
 
 A request names a model as ``NAME`` (that model's newest servable version) or
 ``NAME:VERSION``; without one it gets the default (``RGB2CLOUD_MODEL``), which is
@@ -20,12 +21,12 @@ import logging
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
-from app.loading import LoadedModel, ModelLoadError, available_models, load_version
+from app.loading import LoadedModel, ModelLoadError, load_version
 from app.settings import Settings
 from contract.card import CARD_FILE, CardError, ModelCard, load_card
+from contract.registries import Registries
 
 log = logging.getLogger("rgb2cloud")
 Key = tuple[str, str]
@@ -67,22 +68,25 @@ class ModelCatalog:
         self.on_change: Callable[[ModelCatalog], None] = lambda _: None
 
     @property
-    def registry(self) -> Path:
-        return self.settings.registry
+    def registries(self) -> Registries:
+        return Registries(self.settings.registry, self.settings.bundled_registry)
 
     def default_key(self) -> Key:
-        """The default model's (name, version): ``RGB2CLOUD_MODEL``, else the registry's only model, newest."""
-        models = available_models(self.registry)
+        """The default model's (name, version): ``RGB2CLOUD_MODEL``, else the bundled registry's model, else the
+        only model there is, newest."""
+        registries = self.registries
+        models = registries.models()
+        where = f"{registries.own} and {registries.bundled}"
         if not models:
-            raise ModelLoadError(f"{self.registry}: no published model (expected <name>/<version>/card.json)")
+            raise ModelLoadError(f"{where}: no published model (expected <name>/<version>/card.json)")
         if self.settings.model:
             name, version = parse_reference(self.settings.model)
+        elif (bundled := registries.bundled_default()) is not None:
+            name, version = bundled, None
         elif len(models) == 1:
             name, version = next(iter(models)), None
         else:
-            raise ModelLoadError(
-                f"{self.registry}: several models {sorted(models)}; set RGB2CLOUD_MODEL=NAME or NAME:VERSION"
-            )
+            raise ModelLoadError(f"{where}: several models {sorted(models)}; set RGB2CLOUD_MODEL=NAME or NAME:VERSION")
         try:
             return self._resolve(name, version, models)
         except UnknownModel as e:
@@ -91,7 +95,7 @@ class ModelCatalog:
     def load_default(self) -> LoadedModel:
         """Load the default model (startup); a ModelLoadError stops the service."""
         key = self.default_key()
-        model = load_version(self.registry / key[0] / key[1], self.settings)
+        model = load_version(self.registries.folder(*key), self.settings)
         with self._lock:
             self.default = model
             self._loaded[key] = model
@@ -101,7 +105,7 @@ class ModelCatalog:
     def get(self, reference: str) -> LoadedModel:
         """The model ``NAME`` or ``NAME:VERSION`` names, loading it if needed (blocking: call off the event loop)."""
         name, version = parse_reference(reference)
-        models = available_models(self.registry)
+        models = self.registries.models()
         key = self._resolve(name, version, models)
         while True:
             model = self._cached(key)
@@ -125,7 +129,7 @@ class ModelCatalog:
 
     def _resolve(self, name: str, version: str | None, models: dict[str, list[str]]) -> Key:
         if name not in models:
-            raise UnknownModel(f"no model {name!r} in the registry", models)
+            raise UnknownModel(f"no model {name!r} in the registries", models)
         if version is not None:
             if version not in models[name]:
                 raise UnknownModel(f"model {name!r} has no version {version!r}", models)
@@ -138,7 +142,7 @@ class ModelCatalog:
 
     def _card_stamp(self, key: Key) -> float | None:
         try:
-            return (self.registry / key[0] / key[1] / CARD_FILE).stat().st_mtime
+            return (self.registries.folder(*key) / CARD_FILE).stat().st_mtime
         except OSError:
             return None
 
@@ -165,7 +169,7 @@ class ModelCatalog:
                 raise RefusedModel(f"{key[0]}:{key[1]} cannot be served: {self.refusal(*key)}")
             stamp = self._card_stamp(key)
             try:
-                model = load_version(self.registry / key[0] / key[1], self.settings)
+                model = load_version(self.registries.folder(*key), self.settings)
             except ModelLoadError as e:
                 with self._lock:
                     self._refused[key] = (str(e), stamp)
@@ -192,13 +196,14 @@ class ModelCatalog:
         """What /v1/models shows: every model and version, loaded or refused, with its card's summary."""
         loaded = {(m.card.name, m.card.version) for m in self.loaded()}
         models = []
-        for name, versions in available_models(self.registry).items():
+        registries = self.registries
+        for name, versions in registries.models().items():
             entries = []
             for version in reversed(versions):
                 entry: dict[str, Any] = {"version": version, "loaded": (name, version) in loaded}
                 refused = self.refusal(name, version) if self._still_refused((name, version)) else None
                 try:
-                    entry["card"] = card_summary(load_card(self.registry / name / version))
+                    entry["card"] = card_summary(load_card(registries.folder(name, version)))
                 except CardError as e:
                     refused = refused or str(e)
                 entry["refused"] = refused
@@ -217,7 +222,7 @@ def card_summary(card: ModelCard) -> dict[str, Any]:
     fit = card.training.fit
     return {
         "created": card.created.isoformat(),
-        "camera": card.camera.model_dump(),
+        "camera": card.camera.as_dict(),
         "inference": card.inference.model_dump(),
         "data": [{"name": d.name, "licence": d.licence, "via": d.via} for d in card.training.data],
         "fit": None if fit is None else fit.model_dump(include={"data", "start_from", "start_model"}),

@@ -17,7 +17,6 @@ from contract.card import (
     TORCHSCRIPT_FILE,
     CardError,
     ModelCard,
-    list_versions,
     load_card,
     verify_files,
 )
@@ -51,14 +50,6 @@ class LoadedModel:
         with self.lock:
             raw = self.generator.predict_raw(rgb)
         return self.card.depth_encoding.decode(raw)
-
-
-def available_models(registry: Path) -> dict[str, list[str]]:
-    """Every model name in the registry with its published versions, oldest first."""
-    if not Path(registry).is_dir():
-        return {}
-    names = sorted(p.name for p in Path(registry).iterdir() if p.is_dir() and not p.name.startswith("."))
-    return {name: versions for name in names if (versions := list_versions(registry, name))}
 
 
 def file_weight_shapes(path: Path, backend: str) -> list[tuple[int, ...]]:

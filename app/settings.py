@@ -9,17 +9,26 @@ from typing import Literal
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from contract.registries import checkout_weights, default_registry
+
 
 class Settings(BaseSettings):
     """Read from the environment (RGB2CLOUD_REGISTRY=..., RGB2CLOUD_PORT=...) or passed directly."""
 
     model_config = SettingsConfigDict(env_prefix="RGB2CLOUD_", extra="forbid")
 
-    registry: Path = Field(Path("weights"), description="registry folder: <name>/<version>/card.json")
+    registry: Path = Field(
+        default_factory=default_registry,
+        description="the user's registry, <name>/<version>/card.json, where fit publishes (default: "
+        "$XDG_DATA_HOME/rgb2cloud/models); served beside the bundled one",
+    )
+    bundled_registry: Path = Field(
+        default_factory=checkout_weights, description="the models shipped with rgb2cloud (the checkout's weights/)"
+    )
     model: str | None = Field(
         None,
         description="the default model, NAME (its newest version) or NAME:VERSION, loaded at startup and served "
-        "to requests without model=; unset: the registry's only model",
+        "to requests without model=; unset: the bundled registry's model, else the only model there is",
     )
     max_loaded: int = Field(
         4, ge=2, description="models kept loaded at once: the default and at least one a request names"

@@ -33,11 +33,14 @@ ColourCameraOption = Annotated[
 ]
 
 ModelArgument = Annotated[Path, typer.Argument(help="a published version folder, or a checkpoint (.pt)", exists=True)]
-Format = Annotated[str, typer.Option(help="7scenes | tum | nyu | csv")]
+Format = Annotated[str, typer.Option(help="7scenes | tum | nyu | csv | folders")]
 Root = Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)]
-Frames = Annotated[str | None, typer.Option(help="7scenes frame ranges, e.g. 850-999")]
+Frames = Annotated[
+    str | None, typer.Option(help="7scenes frame numbers, e.g. 850-999; other layouts: names, globs or index ranges")
+]
 MinDepth = Annotated[float, typer.Option(help="valid ground truth from (m)")]
 MaxDepth = Annotated[float, typer.Option(help="valid ground truth up to (m)")]
+REGISTRY_HELP = "registry to publish into (default: $RGB2CLOUD_REGISTRY, else ~/.local/share/rgb2cloud/models)"
 
 app = typer.Typer(help="rgb2cloud: metric depth and point clouds from one RGB image.", no_args_is_help=True)
 
@@ -100,17 +103,18 @@ def export(
     version: Annotated[str, typer.Option(help="semantic version, e.g. 0.1.0; never reused")],
     metrics: Annotated[list[Path], typer.Option(help="metrics.json from evaluate (repeatable)", exists=True)],
     parity_image: Annotated[Path, typer.Option(help="a real RGB image for the parity check", exists=True)],
-    registry: Annotated[Path, typer.Option(help="registry folder")] = Path("weights"),
+    registry: Annotated[Path | None, typer.Option(help=REGISTRY_HELP)] = None,
     inference: Inference = [],  # noqa: B006
 ) -> None:
     """Export ONNX + TorchScript, check parity with eager PyTorch, publish a version."""
     from contract.card import load_card
+    from contract.registries import user_registry
     from contract.spec import parse_inference_options
     from trainer.export import export_and_publish, metrics_from_report
 
     changes = parse_inference_options(inference)
     scores = [metrics_from_report(path) for path in metrics]
-    target = export_and_publish(checkpoint, registry, name, version, scores, parity_image, changes)
+    target = export_and_publish(checkpoint, registry or user_registry(), name, version, scores, parity_image, changes)
     card = load_card(target)
     for file_name, digest in card.files.items():
         typer.echo(f"{file_name}  sha256 {digest}")
@@ -131,7 +135,7 @@ def fit(
             "--from", help="a published version folder to start from, or 'scratch' (default: the bundled base)"
         ),
     ] = None,
-    registry: Annotated[Path, typer.Option(help="registry to publish into")] = Path("weights"),
+    registry: Annotated[Path | None, typer.Option(help=REGISTRY_HELP)] = None,
     format: Annotated[
         str | None,
         typer.Option(help="folders | tum | 7scenes | nyu | csv | rosbag | strayscanner | record3d (default: detected)"),
@@ -167,8 +171,9 @@ def fit(
 ) -> None:
     """Fit a model of your space from a short RGB-D recording, score it honestly, and publish it."""
     from app.client import service_url
+    from contract.registries import user_registry
     from trainer.data.folders import CameraFile
-    from trainer.fit.recording import ReadOptions
+    from trainer.data.formats import ReadOptions
     from trainer.fit.workflow import FitOptions
     from trainer.fit.workflow import fit as run
 
@@ -181,7 +186,7 @@ def fit(
         service_url=service_url(),
         budget_min=budget,
         start_from=from_,
-        registry=registry,
+        registry=registry or user_registry(),
         format=format,
         read=ReadOptions(
             CameraFile(fx, fy, cx, cy, depth_scale), color_topic, depth_topic, max_gap_ms / 1000, min_confidence, every

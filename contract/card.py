@@ -31,7 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from contract.codec import DepthEncoding
 from contract.errors import UserError
-from contract.geometry import ColourCamera
+from contract.geometry import ColourCamera, Intrinsics
 from contract.spec import GeneratorSpec, InferenceSettings
 
 CARD_FILE = "card.json"
@@ -57,17 +57,6 @@ RETIRED_GENERATOR_OPTIONS: dict[str, Any] = {
 
 class CardError(UserError):
     """A card or its files cannot be trusted; the message names the file and the reason."""
-
-
-class Camera(BaseModel):
-    """Intrinsics of the training data, in pixels of a ``width`` x ``height`` image."""
-
-    fx: float = Field(gt=0)
-    fy: float = Field(gt=0)
-    cx: float
-    cy: float
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
 
 
 class DataRef(BaseModel):
@@ -166,7 +155,7 @@ class ModelCard(BaseModel):
         description="how the exported graph wants its input; the service serves only the encoding it feeds"
     )
     depth_encoding: DepthEncoding = Field(description="the graph's tanh output -> metres")
-    camera: Camera = Field(
+    camera: Intrinsics = Field(
         description="the camera at which the generator was trained (its input's scale): the service resamples "
         "every photo to this focal length"
     )

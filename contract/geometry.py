@@ -14,24 +14,40 @@ the same physical ray, which plain ``c * s`` does not.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
+from typing import Annotated
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
+from pydantic.dataclasses import dataclass
 
 from contract.errors import UserError
 
 
+def resized_coordinate(coordinate: float, scale: float) -> float:
+    """A pixel coordinate after its image is resized by ``scale``: the one pixel-centre rule."""
+    return (coordinate + 0.5) * scale - 0.5
+
+
+Positive = Annotated[float, Field(gt=0)]
+Pixels = Annotated[int, Field(gt=0)]
+
+
 @dataclass(frozen=True)
 class Intrinsics:
-    """Pinhole intrinsics in pixels of an image of ``width`` x ``height``."""
+    """Pinhole intrinsics in pixels of an image of ``width`` x ``height``: the one camera type.
 
-    fx: float
-    fy: float
+    The card stores its training camera as one, the service builds one per photo, and every
+    trainer reader puts one in each frame; a pydantic dataclass, so a card or a config is
+    validated on read and the hot paths keep positional construction.
+    """
+
+    fx: Positive
+    fy: Positive
     cx: float
     cy: float
-    width: int
-    height: int
+    width: Pixels
+    height: Pixels
 
     def resized(self, width: int, height: int) -> Intrinsics:
         """The same camera after resizing its image to ``width`` x ``height``."""
@@ -40,8 +56,8 @@ class Intrinsics:
         return Intrinsics(
             fx=self.fx * sx,
             fy=self.fy * sy,
-            cx=(self.cx + 0.5) * sx - 0.5,
-            cy=(self.cy + 0.5) * sy - 0.5,
+            cx=resized_coordinate(self.cx, sx),
+            cy=resized_coordinate(self.cy, sy),
             width=width,
             height=height,
         )
@@ -201,7 +217,7 @@ class ColourCamera(BaseModel):
             update={
                 "fx": self.fx * scale,
                 "fy": self.fy * scale,
-                "cx": (self.cx + 0.5) * scale - 0.5,
-                "cy": (self.cy + 0.5) * scale - 0.5,
+                "cx": resized_coordinate(self.cx, scale),
+                "cy": resized_coordinate(self.cy, scale),
             }
         )

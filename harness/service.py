@@ -21,6 +21,11 @@ import httpx
 
 #: The folder the child starts in, so a relative RGB2CLOUD_REGISTRY means what it does for ``make serve``.
 REPO = Path(__file__).resolve().parents[1]
+#: A registry that does not exist. A child serves only the registries its caller names (``registry=``,
+#: ``bundled_registry=``): no test or benchmark reads a user's models or the checkout's weights by accident.
+NO_REGISTRY = Path(tempfile.gettempdir()) / "rgb2cloud-no-registry"
+#: The checkout's bundled registry, for ``bundled_registry=``.
+BUNDLED_REGISTRY = str(REPO / "weights")
 
 
 def free_port() -> int:
@@ -56,6 +61,8 @@ class ServiceProcess:
             **os.environ,
             "RGB2CLOUD_PORT": str(self.port),
             "RGB2CLOUD_HOST": "127.0.0.1",
+            "RGB2CLOUD_REGISTRY": str(NO_REGISTRY),
+            "RGB2CLOUD_BUNDLED_REGISTRY": str(NO_REGISTRY),
             **{f"RGB2CLOUD_{k.upper()}": v for k, v in env.items()},
         }
         # Its log goes to a file, not a pipe: a pipe nobody drains fills up after a few hundred

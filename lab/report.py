@@ -329,7 +329,7 @@ def _reproduce(inputs: ReportInputs, card: ModelCard, colour: ColourCamera | Non
     run = trained["train"]["out_dir"]
     checkpoint = f"{run}/checkpoints/{'best' if trained['data']['val'] else 'last'}.pt"
     camera = f" --colour-camera '{colour.flow()}'" if colour else ""
-    parity = os.path.normpath(unseen.path.parent / unseen.rows[0][0])
+    parity = os.path.normpath(unseen.pairs[0].rgb)
     compare = f" --experiments {inputs.experiments}" if inputs.experiments else ""
     return [
         "```sh",

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from PIL import ExifTags, Image, ImageOps
 from plyfile import PlyData
 
-from harness.service import running_service
+from harness.service import BUNDLED_REGISTRY, running_service
 
 EXAMPLES = 200
 MODES = ["RGB", "L", "LA", "RGBA", "P", "CMYK", "I;16", "I", "F", "1"]
@@ -77,7 +77,7 @@ def encode(size: tuple[int, int], mode: str, fmt: str, exif: dict, seed: int) ->
 
 @pytest.fixture(scope="module")
 def service():
-    with running_service(model="rgb2cloud-7scenes", threads="2") as running:
+    with running_service(bundled_registry=BUNDLED_REGISTRY, model="rgb2cloud-7scenes", threads="2") as running:
         yield running.url
 
 

@@ -17,14 +17,14 @@ from conftest import REPO, SEVEN_SCENES
 from PIL import ExifTags, Image
 
 from app.camera import FILM_DIAGONAL_MM, CameraQuery, exif_focal, generator_size, photo_camera
-from contract.card import Camera, load_card
+from contract.card import load_card
 from contract.geometry import Intrinsics
-from harness.service import running_service
+from harness.service import BUNDLED_REGISTRY, running_service
 from trainer.data.frames import read_depth_png
 from trainer.metrics import MetricAccumulator
 
 BUNDLED = load_card(REPO / "weights" / "rgb2cloud-7scenes" / "0.8.1")
-KITCHEN = Camera(fx=530.0, fy=530.0, cx=314.5, cy=239.0, width=640, height=480)
+KITCHEN = Intrinsics(fx=530.0, fy=530.0, cx=314.5, cy=239.0, width=640, height=480)
 #: Every 15th test frame: ten views of the kitchen the model never trained on.
 FRAMES = range(850, 1000, 15)
 ENLARGEMENTS = (1.25, 1.5)
@@ -139,7 +139,7 @@ def test_exif_focal_length_from_the_focal_plane_or_35mm_equivalent_and_turned_wi
 
 @pytest.fixture(scope="module")
 def bundled_service():
-    with running_service(model="rgb2cloud-7scenes:0.8.1", threads="2") as service:
+    with running_service(bundled_registry=BUNDLED_REGISTRY, model="rgb2cloud-7scenes:0.8.1", threads="2") as service:
         yield service.url
 
 
@@ -203,7 +203,9 @@ def test_a_photo_shrunk_past_the_pixel_bound_says_so_and_what_it_costs(bundled_s
     rows = {"1.0000": served_frames_delta1(bundled_service)}
     for ratio in (0.75, 0.5):
         bound = str(round(640 * 480 * ratio**2))
-        with running_service(model="rgb2cloud-7scenes:0.8.1", threads="2", inference_max_pixels=bound) as shrunk:
+        with running_service(
+            bundled_registry=BUNDLED_REGISTRY, model="rgb2cloud-7scenes:0.8.1", threads="2", inference_max_pixels=bound
+        ) as shrunk:
             rows[f"{ratio:.4f}"] = served_frames_delta1(shrunk.url)
     print("\n| X-Focal-Ratio | δ1 on RedKitchen test frames 850-999, every 15th |\n|---|---|")
     for ratio, (delta1, _) in rows.items():

@@ -49,7 +49,9 @@ def test_image_shape():
     assert user and not user[-1].startswith(("0", "root"))
     assert any(kw == "HEALTHCHECK" for kw, _ in steps)
     env = " ".join(arg for kw, arg in steps if kw == "ENV")
-    assert "RGB2CLOUD_PORT=" in env and "RGB2CLOUD_REGISTRY=weights" in env
+    assert (
+        "RGB2CLOUD_PORT=" in env and "RGB2CLOUD_BUNDLED_REGISTRY=weights" in env and "RGB2CLOUD_REGISTRY=/models" in env
+    )
     copied = [arg.split()[0] for kw, arg in steps if kw == "COPY"]
     assert "weights" in copied and "tests" not in copied
 

@@ -16,7 +16,6 @@ from PIL import Image
 from contract.card import (
     ONNX_FILE,
     TORCHSCRIPT_FILE,
-    Camera,
     CardError,
     DataRef,
     Metrics,
@@ -28,7 +27,7 @@ from contract.card import (
     verify_files,
 )
 from contract.codec import INPUT_ENCODING, DepthEncoding
-from contract.geometry import ColourCamera
+from contract.geometry import ColourCamera, Intrinsics
 from contract.runtime import OnnxGenerator
 from contract.spec import GeneratorSpec, InferenceSettings
 from trainer.checkpoint import load_graph
@@ -175,7 +174,7 @@ def _card(version: str) -> ModelCard:
         input_multiple=16,
         input_encoding=INPUT_ENCODING,
         depth_encoding=DepthEncoding(),
-        camera=Camera(fx=585, fy=585, cx=320, cy=240, width=640, height=480),
+        camera=Intrinsics(fx=585, fy=585, cx=320, cy=240, width=640, height=480),
         training=Training(
             data=[DataRef(name="x", format="7scenes", frames="0-1", licence="MIT")],
             steps=1,

@@ -20,8 +20,8 @@ from contract.runtime import OnnxGenerator
 from harness.service import running_service
 from trainer.checkpoint import load_generator_weights
 from trainer.data.folders import CameraFile, find_pairs, read_intrinsics_json
+from trainer.data.formats import ReadOptions, detect_format, open_recording
 from trainer.fit.budget import Plan, Workload, plan_training
-from trainer.fit.recording import ReadOptions, detect_format, open_recording
 from trainer.fit.split import split_recording
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.networks import GlobalGenerator
@@ -91,15 +91,26 @@ def refused(*args: str) -> str:
 
 
 @pytest.mark.slow
-def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path):
+def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path, monkeypatch):
     data = write_recording(tmp_path / "rec", 24, open3d=True, timestamps=True)
     start = registry / "tiny" / "0.1.0"
+    # No --registry: fit publishes into the user's data folder, never into the checkout's tracked weights/.
+    monkeypatch.delenv("RGB2CLOUD_REGISTRY", raising=False)
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    args = fit_args(data, tmp_path, start)
+    at = args.index("--registry")
     began = time.monotonic()
-    stdout = run_cli(*fit_args(data, tmp_path, start)).stdout
+    stdout = run_cli(*args[:at], *args[at + 2 :]).stdout
     assert time.monotonic() - began < 60 + BUDGET_MARGIN_S  # the budget holds
     assert "pairs: 24 found, 0 skipped" in stdout and "split: train 16, selection 2" in stdout
     assert "| fitted model |" in stdout and "| tiny 0.1.0, zero-shot (the start) |" in stdout
-    folder = tmp_path / "registry" / "my-room" / "0.1.0"
+    own = tmp_path / "data" / "rgb2cloud" / "models"
+    folder = own / "my-room" / "0.1.0"
+    assert (
+        f"published {folder}" in stdout
+        and f"run folder (config, checkpoints, split manifests): {tmp_path / 'run'}" in stdout
+    )
+    assert not (REPO / "weights" / "my-room").exists()
     card = load_card(folder)
     assert card.training.fit.start_from == str(start) and card.training.fit.budget_min == 1.0
     split = card.training.fit.split
@@ -117,9 +128,9 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path)
     assert all(m.images == 5 for m in card.metrics)
     assert card.generator == load_card(start).generator
     # The exact commands to serve it, and the service does.
-    assert f"RGB2CLOUD_REGISTRY={tmp_path / 'registry'} RGB2CLOUD_MODEL=my-room:0.1.0 make serve" in stdout
+    assert f"RGB2CLOUD_REGISTRY={own} RGB2CLOUD_MODEL=my-room:0.1.0 make serve" in stdout
     assert "/depth?model=my-room:0.1.0" in stdout
-    with running_service(registry=str(tmp_path / "registry"), model="my-room:0.1.0") as service:
+    with running_service(registry=str(own), model="my-room:0.1.0") as service:
         photo = next((data / "color").iterdir()).read_bytes()
         response = httpx.post(f"{service.url}/depth", files={"image": photo}, timeout=30)
         assert response.status_code == 200 and response.headers["x-model-version"] == "0.1.0"
@@ -219,6 +230,8 @@ def test_layouts_are_detected_and_an_unknown_one_is_explained(tmp_path):
     assert message.endswith(
         "photos-only: rgb/ but no depth/ folder: fit needs depth images (16-bit PNG) beside the photos"
     )
+    message = refused("fit", str(tmp_path / "odd"), "--name", "rgb2cloud-7scenes", "--licence", "y")
+    assert "--name rgb2cloud-7scenes: a bundled model has this name" in message
 
 
 def test_pairs_match_by_name_or_by_nearest_timestamp(tmp_path):
@@ -255,7 +268,7 @@ def test_both_intrinsics_forms_and_command_line_overrides(tmp_path):
     with pytest.raises(ValueError, match=r"no camera intrinsics .* pass --fx --fy --cx --cy"):
         open_recording(data, None, ReadOptions(), tmp_path)
     pairs = open_recording(data, None, ReadOptions(CameraFile(100, 100, 20, 15, 1000)), tmp_path).pairs
-    assert (pairs[0].fx, pairs[0].cy, pairs[0].depth_scale) == (100, 15, 1000)
+    assert (pairs[0].camera.fx, pairs[0].camera.cy, pairs[0].depth_scale) == (100, 15, 1000)
 
 
 @pytest.mark.slow

@@ -157,3 +157,22 @@ def test_a_bound_that_could_not_keep_a_named_model_is_refused_at_startup(site_re
         running_service(registry=str(site_registry), model="kitchen", threads="1", max_loaded="1"),
     ):
         pass
+
+
+def test_the_bundled_registry_is_served_beside_the_users_and_is_the_default(registry, tmp_path):
+    """The user's registry (where fit publishes) and the bundled one are served together: the bundled
+    model is the default unless RGB2CLOUD_MODEL says otherwise, and a name in both is the user's."""
+    bundled, own = tmp_path / "bundled", tmp_path / "own"
+    publish_copy(registry / "tiny" / "0.1.0", bundled, "kitchen", "1.0.0")
+    publish_copy(registry / "tiny" / "0.1.0", own, "my-room", "0.1.0")
+    publish_copy(registry / "tiny" / "0.1.0", own, "kitchen", "2.0.0")
+    with running_service(registry=str(own), bundled_registry=str(bundled), threads="1") as service:
+        default = depth(service.url)
+        assert (default.headers["x-model-name"], default.headers["x-model-version"]) == ("kitchen", "2.0.0")
+        assert depth(service.url, "my-room").headers["x-model-name"] == "my-room"
+        assert depth(service.url, "kitchen:1.0.0").status_code == 404  # the user's kitchen shadows the bundled
+        assert set(loaded(service.url)) == {"kitchen:2.0.0", "my-room:0.1.0"}
+    (own / "kitchen").rename(tmp_path / "moved")
+    with running_service(registry=str(own), bundled_registry=str(bundled), threads="1") as service:
+        assert depth(service.url).headers["x-model-name"] == "kitchen"  # the bundled one, not the only own model
+        assert depth(service.url, "my-room").status_code == 200

@@ -12,10 +12,10 @@ from contract.card import load_card
 from contract.errors import UserError
 from contract.geometry import ColourCamera, Intrinsics
 from harness.recordings import MOSD_CAMERA, write_record3d, write_stray_scanner
+from trainer.data.formats import ReadOptions, detect_format, open_recording
 from trainer.data.frames import Frame
 from trainer.data.record3d import read_record3d
 from trainer.data.strayscanner import read_stray_scanner
-from trainer.fit.recording import ReadOptions, detect_format, open_recording
 from trainer.registration import SURFACE_SPREAD, alignment, upsample_depth
 
 IPHONE = DATA / "captures" / "iphone-lidar"
@@ -72,7 +72,8 @@ def test_a_written_export_reads_back_as_its_frames(tmp_path, frame_column):
     assert [p.name for p in recording.pairs] == [f"{100 + i / 30:.6f}" for i in range(5)]
     assert recording.notes[0].startswith("stray scanner: 5 depth maps, video 640x480 written at 640x480")
     assert "confidence 2 and up kept" in recording.notes[1]
-    assert (recording.pairs[0].fx, recording.pairs[0].cx, recording.pairs[0].depth_scale) == (525.0, 319.5, 1000.0)
+    first = recording.pairs[0]
+    assert (first.camera.fx, first.camera.cx, first.depth_scale) == (525.0, 319.5, 1000.0)
     for pair, (rgb, mm) in zip(recording.pairs, frames, strict=True):
         photo = np.asarray(Image.open(pair.rgb).convert("RGB"), dtype=np.float32)
         assert np.abs(photo - rgb).mean() < 4  # H.264 at crf 12, then JPEG
@@ -113,7 +114,7 @@ def test_a_written_record3d_export_reads_back_as_its_frames(tmp_path):
     recording = open_recording(path, None, ReadOptions(), tmp_path / "run")
     assert [p.name for p in recording.pairs] == [f"{i / 30:.6f}" for i in range(4)]
     assert recording.notes[0] == "record3d: 4 frames, photos 640x480 written at 640x480, depth 256x192"
-    assert (recording.pairs[0].fx, recording.pairs[0].cy) == (525.0, 239.5)
+    assert (recording.pairs[0].camera.fx, recording.pairs[0].camera.cy) == (525.0, 239.5)
     for pair, (rgb, mm) in zip(recording.pairs, frames, strict=True):
         assert np.abs(np.asarray(Image.open(pair.rgb).convert("RGB"), dtype=np.float32) - rgb).mean() < 4
         depth = np.asarray(Image.open(pair.depth), dtype=np.float32)

@@ -13,8 +13,8 @@ from conftest import SEVEN_SCENES, run_cli
 
 from contract.geometry import ColourCamera, Intrinsics
 from trainer.config import DataSource
+from trainer.data.formats import open_source
 from trainer.data.frames import Frame
-from trainer.data.sources import open_source
 from trainer.evaluate import evaluate_frames
 from trainer.registration import (
     alignment,

@@ -15,9 +15,9 @@ from contract.card import load_card
 from contract.errors import UserError
 from contract.geometry import ColourCamera, Intrinsics
 from harness.recordings import MOSD_CAMERA, BagWriter, write_aligned_bag
+from trainer.data.formats import ReadOptions, detect_format, open_recording
 from trainer.data.frames import Frame
 from trainer.data.rosbag import read_bag
-from trainer.fit.recording import ReadOptions, detect_format, open_recording
 from trainer.registration import alignment, reproject_depth
 
 REALSENSE_BAG = DATA / "captures" / "realsense-viewer-d435.bag"
@@ -41,10 +41,10 @@ def test_the_realsense_viewer_bag_is_registered_into_its_colour_camera(tmp_path)
     """Depth not aligned in the bag is moved with its extrinsics, and then lines up with colour edges better."""
     bag = read_bag(REALSENSE_BAG, tmp_path, max_gap_s=0.15)
     assert len(bag.pairs) == 1 and bag.skipped == []
-    assert (bag.camera.fx, bag.camera.width) == (pytest.approx(613.2037, abs=1e-3), 640)
+    assert (bag.pairs[0].camera.fx, bag.pairs[0].camera.width) == (pytest.approx(613.2037, abs=1e-3), 640)
     assert "mono16" in bag.notes[0] and "depth unit 1 mm" in bag.notes[0]
     assert "RealSense recording's extrinsics (translation 14.3 mm" in bag.notes[2]
-    name, colour_file, depth_file = bag.pairs[0]
+    name, colour_file, depth_file = bag.pairs[0].name, bag.pairs[0].rgb, bag.pairs[0].depth
     rgb = np.asarray(Image.open(colour_file).convert("RGB"))
     registered = np.asarray(Image.open(depth_file), dtype=np.float32) / 1000.0
     assert registered.shape == (480, 640) and np.median(registered[registered > 0]) == pytest.approx(1.54, abs=0.1)
@@ -55,7 +55,7 @@ def test_the_realsense_viewer_bag_is_registered_into_its_colour_camera(tmp_path)
         connection = next(c for c in reader.connections if c.topic == "/device_0/sensor_0/Depth_0/image/data")
         raw_message = reader.deserialize(next(reader.messages(connections=[connection]))[2], connection.msgtype)
     raw = np.frombuffer(bytes(raw_message.data), np.uint16).reshape(480, 640).astype(np.float32) / 1000.0
-    k = bag.camera
+    k = bag.pairs[0].camera
     same = ColourCamera(fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy)  # the project's edge score, depth read as it stands
     as_registered = alignment([Frame(rgb, registered, k, name)], same)
     as_recorded = alignment([Frame(rgb, raw, k, name)], same)
@@ -76,7 +76,7 @@ def test_a_written_bag_reads_back_as_its_frames(tmp_path, kind, colour, depth):
     assert (
         "aligned to colour in the bag" in recording.notes[2] and "/camera/aligned_depth_to_color" in recording.notes[0]
     )
-    assert (recording.pairs[0].fx, recording.pairs[0].depth_scale) == (262.5, 1000.0)
+    assert (recording.pairs[0].camera.fx, recording.pairs[0].depth_scale) == (262.5, 1000.0)
     for pair, (rgb, mm) in zip(recording.pairs, frames, strict=True):
         np.testing.assert_array_equal(np.asarray(Image.open(pair.depth)), mm)
         read = np.asarray(Image.open(pair.rgb).convert("RGB"), dtype=np.int16)

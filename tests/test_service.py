@@ -22,7 +22,7 @@ from plyfile import PlyData
 
 from app.catalog import ModelCatalog
 from app.settings import Settings
-from harness.service import running_service, server_timing
+from harness.service import NO_REGISTRY, running_service, server_timing
 
 ALLOWED_ORIGIN = "https://viewer.example"
 LIMIT = 2_000_000
@@ -39,7 +39,7 @@ def service(registry):
 
 @pytest.fixture(scope="module")
 def model(registry):
-    return ModelCatalog(Settings(registry=registry, threads=1)).load_default()
+    return ModelCatalog(Settings(registry=registry, bundled_registry=NO_REGISTRY, threads=1)).load_default()
 
 
 def own_focal(model) -> dict[str, float]:
@@ -321,7 +321,7 @@ def test_a_corrupt_model_stops_startup_with_one_clear_line(registry, tmp_path):
     shutil.copytree(registry, broken)
     onnx_file = broken / "tiny" / "0.1.0" / "generator.onnx"
     onnx_file.write_bytes(onnx_file.read_bytes()[:-10])
-    env = {"RGB2CLOUD_REGISTRY": str(broken), "RGB2CLOUD_PORT": "1"}
+    env = {"RGB2CLOUD_REGISTRY": str(broken), "RGB2CLOUD_BUNDLED_REGISTRY": str(NO_REGISTRY), "RGB2CLOUD_PORT": "1"}
     result = subprocess.run(
         [sys.executable, "-m", "app"],
         cwd=REPO,
@@ -358,7 +358,7 @@ def test_the_model_dependency_follows_an_overridden_catalog(registry):
     from app.main import create_app
     from harness.service import free_port
 
-    settings = Settings(registry=registry, threads=1)
+    settings = Settings(registry=registry, bundled_registry=NO_REGISTRY, threads=1)
     catalog = ModelCatalog(settings)
     catalog.load_default()
     app = create_app(settings, catalog)

@@ -18,7 +18,7 @@ from conftest import REPO, TUM_FRAME
 from PIL import Image
 from plyfile import PlyData
 
-from harness.service import running_service
+from harness.service import BUNDLED_REGISTRY, running_service
 
 #: Real processes, networks or browsers: the full suite (`make test`) runs these, `-m 'not slow'` skips them.
 pytestmark = pytest.mark.slow
@@ -48,7 +48,7 @@ def browser():
 
 @pytest.fixture(scope="module")
 def service():
-    with running_service(model="rgb2cloud-7scenes", threads="2") as running:
+    with running_service(bundled_registry=BUNDLED_REGISTRY, model="rgb2cloud-7scenes", threads="2") as running:
         yield running.url
 
 
@@ -151,7 +151,9 @@ def test_the_api_message_is_shown_for_a_file_that_is_not_an_image(browser, servi
 
 def test_a_busy_service_is_retried_after_retry_after(browser):
     # One request at a time and no queue: the page's two calls collide, and one gets 503 until the other is done.
-    with running_service(model="rgb2cloud-7scenes", threads="2", workers="1", max_queue="0") as busy:
+    with running_service(
+        bundled_registry=BUNDLED_REGISTRY, model="rgb2cloud-7scenes", threads="2", workers="1", max_queue="0"
+    ) as busy:
         page, errors = open_page(browser, busy.url)
         page.evaluate(
             """() => { window.said = [];

@@ -19,8 +19,8 @@ import numpy as np
 
 from contract.errors import UserError
 from trainer.config import DataSource
+from trainer.data.formats import describe, open_source
 from trainer.data.frames import Frame
-from trainer.data.sources import describe, open_source
 from trainer.evaluate import PAPER_TUM, markdown_table
 from trainer.metrics import MetricAccumulator
 

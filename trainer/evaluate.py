@@ -20,8 +20,8 @@ from contract.geometry import ColourCamera
 from contract.runtime import OnnxGenerator
 from trainer.checkpoint import load_graph
 from trainer.config import DataSource
+from trainer.data.formats import describe, open_source
 from trainer.data.frames import Frame
-from trainer.data.sources import describe, open_source
 from trainer.data.transforms import resize_frame
 from trainer.inference import EagerGenerator
 from trainer.metrics import MetricAccumulator, valid_mask

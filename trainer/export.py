@@ -25,7 +25,6 @@ from PIL import Image
 from contract.card import (
     ONNX_FILE,
     TORCHSCRIPT_FILE,
-    Camera,
     DataRef,
     FitRecord,
     Metrics,
@@ -39,8 +38,8 @@ from contract.geometry import Intrinsics
 from contract.runtime import OnnxGenerator
 from trainer.checkpoint import load_graph
 from trainer.config import DataSource
+from trainer.data.formats import describe, open_source
 from trainer.data.frames import FrameReader
-from trainer.data.sources import describe, open_source
 from trainer.inference import EagerGenerator, InferenceGraph
 
 PARITY_TOLERANCE = 1e-4
@@ -208,7 +207,7 @@ def export_and_publish(
             input_multiple=config.generator.input_multiple,
             input_encoding=INPUT_ENCODING,
             depth_encoding=config.depth,
-            camera=Camera(**camera.as_dict()),
+            camera=camera,
             training=Training(
                 data=data,
                 steps=weights.step,

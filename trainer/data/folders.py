@@ -23,7 +23,7 @@ from pathlib import Path
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.frames import Frame, check_pair, parse_frame_ranges, read_depth_png, read_rgb
+from trainer.data.frames import PairsReader, RecordedPair, image_size, parse_frame_ranges
 
 COLOUR_FOLDERS = ("color", "rgb", "image")
 DEPTH_FOLDER = "depth"
@@ -48,6 +48,16 @@ class CameraFile:
         """These values with every value ``overrides`` sets taking precedence."""
         pick = {k: v if v is not None else getattr(self, k) for k, v in vars(overrides).items()}
         return CameraFile(**pick)
+
+    def intrinsics(self, width: int, height: int, where: Path) -> Intrinsics:
+        """The camera for a ``width`` x ``height`` photo; UserError naming ``where`` if a value is missing."""
+        missing = [key for key in ("fx", "fy", "cx", "cy") if getattr(self, key) is None]
+        if missing:
+            raise UserError(
+                f"{where}: no camera intrinsics ({', '.join(missing)} missing): add an {INTRINSICS_FILE} "
+                "(Open3D's PinholeCameraIntrinsic, or fx, fy, cx, cy) or pass --fx --fy --cx --cy"
+            )
+        return Intrinsics(self.fx, self.fy, self.cx, self.cy, width, height)
 
 
 def read_intrinsics_json(path: Path) -> CameraFile:
@@ -154,34 +164,23 @@ def select_frames(names: list[str], spec: str) -> list[int]:
     return sorted(chosen)
 
 
-class FoldersReader:
-    """The frames of a ``color/`` + ``depth/`` recording, optionally a selection of them.
+class FoldersReader(PairsReader):
+    """The pairs of a ``color/`` + ``depth/`` recording.
 
     ``camera`` fills in or overrides what ``intrinsics.json`` says; depth is in
     millimetres unless one of them gives ``depth_scale``.
     """
 
-    def __init__(self, root: Path, frames: str | None = None, camera: CameraFile | None = None):
+    def __init__(self, root: Path, camera: CameraFile | None = None):
         self.root = Path(root)
-        self.name, self.licence = self.root.name, ""
-        pairs, _ = find_pairs(self.root)
-        if not pairs:
-            raise UserError(f"{self.root}: no colour image has a depth image")
+        found, skipped = find_pairs(self.root)
+        if not found:
+            raise UserError(
+                f"{self.root}: no colour image has a depth image ({len(skipped)} colour images, none paired)"
+            )
         own = self.root / INTRINSICS_FILE
-        self.camera = (read_intrinsics_json(own) if own.is_file() else CameraFile()).merged(camera or CameraFile())
-        missing = [key for key in ("fx", "fy", "cx", "cy") if getattr(self.camera, key) is None]
-        if missing:
-            raise UserError(f"{self.root}: no {INTRINSICS_FILE} and no camera given ({', '.join(missing)} missing)")
-        chosen = select_frames([p.name for p in pairs], frames) if frames else range(len(pairs))
-        self.pairs = [pairs[i] for i in chosen]
-
-    def __len__(self) -> int:
-        return len(self.pairs)
-
-    def __getitem__(self, index: int) -> Frame:
-        pair, k = self.pairs[index], self.camera
-        rgb = read_rgb(pair.rgb)
-        depth = read_depth_png(pair.depth, k.depth_scale or 1000.0)
-        check_pair(rgb, depth, str(pair.rgb))
-        intrinsics = Intrinsics(k.fx, k.fy, k.cx, k.cy, rgb.shape[1], rgb.shape[0])
-        return Frame(rgb, depth, intrinsics, f"{self.name}/{pair.name}")
+        k = (read_intrinsics_json(own) if own.is_file() else CameraFile()).merged(camera or CameraFile())
+        intrinsics = k.intrinsics(*image_size(found[0].rgb), self.root)
+        scale = k.depth_scale or 1000.0
+        pairs = [RecordedPair(p.name, p.rgb, p.depth, scale, intrinsics) for p in found]
+        super().__init__(self.root.name, "", pairs, skipped)

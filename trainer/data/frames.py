@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
@@ -26,21 +26,6 @@ class Frame:
     name: str
 
 
-@dataclass
-class WrittenPairs:
-    """A recording whose frames a reader wrote out as files (a bag's messages, a phone's video and depth maps).
-
-    ``pairs`` are (name, colour file, depth file in 16-bit millimetres) in time order, the depth
-    already in ``camera``, the colour camera; ``skipped`` says which frames were left out and why,
-    and ``notes`` what the reader found, for a user to see.
-    """
-
-    pairs: list[tuple[str, Path, Path]]
-    camera: Intrinsics
-    skipped: list[tuple[str, str]]
-    notes: list[str] = field(default_factory=list)
-
-
 class FrameReader(Protocol):
     """A finite, indexable sequence of frames from one dataset."""
 
@@ -50,6 +35,81 @@ class FrameReader(Protocol):
     def __len__(self) -> int: ...
 
     def __getitem__(self, index: int) -> Frame: ...
+
+
+@dataclass(frozen=True)
+class RecordedPair:
+    """One colour/depth pair on disk: the depth's raw units per metre and the colour camera.
+
+    ``camera`` is for an image of its own size; a pair whose photo has another size gets
+    the same camera resized (7-Scenes' calibration is for 640x480, whatever its files hold).
+    """
+
+    name: str
+    rgb: Path
+    depth: Path
+    depth_scale: float
+    camera: Intrinsics
+
+
+def read_pair(pair: RecordedPair, name: str | None = None) -> Frame:
+    """The frame a pair holds, named ``name`` (default: the pair's)."""
+    rgb = read_rgb(pair.rgb)
+    depth = read_depth_png(pair.depth, pair.depth_scale)
+    check_pair(rgb, depth, str(pair.rgb))
+    camera = pair.camera
+    if (camera.width, camera.height) != (rgb.shape[1], rgb.shape[0]):
+        camera = camera.resized(rgb.shape[1], rgb.shape[0])
+    return Frame(rgb, depth, camera, pair.name if name is None else name)
+
+
+class PairsReader:
+    """A ``FrameReader`` over colour/depth files: every format but NYU's arrays is this once listed.
+
+    ``skipped`` says which frames a reader left out and why, and ``notes`` what it found (a bag's
+    topics, a phone's confidence), for ``fit`` to print.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        licence: str,
+        pairs: list[RecordedPair],
+        skipped: list[tuple[str, str]] | None = None,
+        notes: list[str] | None = None,
+    ):
+        self.name, self.licence, self.pairs = name, licence, pairs
+        self.skipped = skipped or []
+        self.notes = notes or []
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def __getitem__(self, index: int) -> Frame:
+        pair = self.pairs[index]
+        return read_pair(pair, f"{self.name}/{pair.name}")
+
+    def selected(self, indices: list[int]) -> PairsReader:
+        """The same reader holding only the pairs at ``indices``."""
+        return PairsReader(self.name, self.licence, [self.pairs[i] for i in indices], self.skipped, self.notes)
+
+
+#: Raw units per metre of the depth PNGs readers write out (a bag's messages, a phone's maps).
+WRITTEN_DEPTH_SCALE = 1000.0
+
+
+def written_pairs(
+    name: str, files: list[tuple[str, Path, Path]], camera: Intrinsics, skipped: list[tuple[str, str]], notes: list[str]
+) -> PairsReader:
+    """The frames a reader wrote out: (name, colour file, millimetre depth file) in time order, in ``camera``."""
+    pairs = [RecordedPair(n, rgb, depth, WRITTEN_DEPTH_SCALE, camera) for n, rgb, depth in files]
+    return PairsReader(name, "", pairs, skipped, notes)
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) from an image file's header, without decoding it."""
+    with Image.open(path) as im:
+        return im.size
 
 
 def read_rgb(path: Path) -> np.ndarray:

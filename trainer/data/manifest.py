@@ -16,41 +16,51 @@ from pathlib import Path
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.frames import Frame, check_pair, read_depth_png, read_rgb
+from trainer.data.frames import PairsReader, RecordedPair, image_size
 
 COLUMNS = ("rgb", "depth", "depth_scale", "fx", "fy", "cx", "cy")
 
 
-class ManifestReader:
+class ManifestReader(PairsReader):
+    """The pairs a manifest lists; each row's intrinsics are for its own photo's size."""
+
     def __init__(self, csv_path: Path, licence: str | None = None):
         self.path = Path(csv_path)
-        self.name = self.path.stem
-        self.licence = licence or ""
         with open(self.path, newline="") as f:
             reader = csv.DictReader(f)
             missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
             if missing:
                 raise UserError(f"{self.path}: missing columns {missing}; expected {','.join(COLUMNS)}")
-            self.rows = []
-            for line, row in enumerate(reader, 2):
-                try:
-                    numbers = {k: float(row[k]) for k in COLUMNS[2:]}
-                except (TypeError, ValueError) as e:
-                    raise UserError(f"{self.path}:{line}: {e}") from e
-                if numbers["depth_scale"] <= 0 or numbers["fx"] <= 0 or numbers["fy"] <= 0:
-                    raise UserError(f"{self.path}:{line}: depth_scale, fx and fy must be positive")
-                self.rows.append((row["rgb"], row["depth"], numbers))
-        if not self.rows:
+            pairs = [self._pair(row, line) for line, row in enumerate(reader, 2)]
+        if not pairs:
             raise UserError(f"{self.path}: no rows")
+        super().__init__(self.path.stem, licence or "", pairs)
 
-    def __len__(self) -> int:
-        return len(self.rows)
+    def _pair(self, row: dict[str, str], line: int) -> RecordedPair:
+        try:
+            numbers = {k: float(row[k]) for k in COLUMNS[2:]}
+        except (TypeError, ValueError) as e:
+            raise UserError(f"{self.path}:{line}: {e}") from e
+        if numbers["depth_scale"] <= 0 or numbers["fx"] <= 0 or numbers["fy"] <= 0:
+            raise UserError(f"{self.path}:{line}: depth_scale, fx and fy must be positive")
+        rgb = self.path.parent / row["rgb"]
+        try:
+            width, height = image_size(rgb)
+        except OSError as e:
+            raise UserError(f"{self.path}:{line}: cannot read {rgb}: {e}") from None
+        k = Intrinsics(numbers["fx"], numbers["fy"], numbers["cx"], numbers["cy"], width, height)
+        return RecordedPair(Path(row["rgb"]).stem, rgb, self.path.parent / row["depth"], numbers["depth_scale"], k)
 
-    def __getitem__(self, index: int) -> Frame:
-        rgb_file, depth_file, n = self.rows[index]
-        base = self.path.parent
-        rgb = read_rgb(base / rgb_file)
-        depth = read_depth_png(base / depth_file, n["depth_scale"])
-        check_pair(rgb, depth, str(base / rgb_file))
-        intrinsics = Intrinsics(n["fx"], n["fy"], n["cx"], n["cy"], rgb.shape[1], rgb.shape[0])
-        return Frame(rgb, depth, intrinsics, f"{self.name}/{Path(rgb_file).stem}")
+
+def write_manifest(path: Path, pairs: list[RecordedPair]) -> Path:
+    """A CSV manifest of ``pairs`` with absolute paths, which ``ManifestReader`` reads back."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(COLUMNS)
+        for p in pairs:
+            k, size = p.camera, image_size(p.rgb)
+            if size != (k.width, k.height):
+                k = k.resized(*size)
+            writer.writerow([p.rgb.resolve(), p.depth.resolve(), p.depth_scale, k.fx, k.fy, k.cx, k.cy])
+    return path

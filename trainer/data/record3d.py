@@ -25,7 +25,7 @@ from PIL import Image
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.frames import WrittenPairs
+from trainer.data.frames import PairsReader, written_pairs
 from trainer.data.strayscanner import DEFAULT_MIN_CONFIDENCE, MAX_WRITTEN_PIXELS
 from trainer.registration import upsample_depth
 
@@ -34,7 +34,7 @@ def is_record3d(path: Path) -> bool:
     return Path(path).is_file() and Path(path).suffix.lower() == ".r3d"
 
 
-def read_record3d(path: Path, out: Path, every: int = 1, min_confidence: int = DEFAULT_MIN_CONFIDENCE) -> WrittenPairs:
+def read_record3d(path: Path, out: Path, every: int = 1, min_confidence: int = DEFAULT_MIN_CONFIDENCE) -> PairsReader:
     """Every ``every``-th frame, written under ``out`` as colour JPEG and 16-bit millimetre PNG."""
     path, out = Path(path), Path(out)
     try:
@@ -44,7 +44,7 @@ def read_record3d(path: Path, out: Path, every: int = 1, min_confidence: int = D
         raise UserError(f"{path}: not a complete .r3d (zip) file: {e}") from None
 
 
-def _read(archive: zipfile.ZipFile, path: Path, out: Path, every: int, min_confidence: int) -> WrittenPairs:
+def _read(archive: zipfile.ZipFile, path: Path, out: Path, every: int, min_confidence: int) -> PairsReader:
     metadata = _metadata(archive, path)
     k = np.asarray(metadata["K"], dtype=np.float64).reshape(3, 3).T  # stored column-major
     width, height, depth_size = int(metadata["w"]), int(metadata["h"]), (int(metadata["dh"]), int(metadata["dw"]))
@@ -82,7 +82,7 @@ def _read(archive: zipfile.ZipFile, path: Path, out: Path, every: int, min_confi
         f"depth: confidence {min_confidence} and up kept, {100 * float(np.mean(kept or [0])):.0f}% of depth pixels; "
         "upsampled without blending across depth steps",
     ]
-    return WrittenPairs(pairs, camera, skipped, notes)
+    return written_pairs(path.stem, pairs, camera, skipped, notes)
 
 
 def _metadata(archive: zipfile.ZipFile, path: Path) -> dict:

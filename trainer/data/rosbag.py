@@ -34,7 +34,7 @@ from PIL import Image
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.frames import WrittenPairs
+from trainer.data.frames import PairsReader, written_pairs
 from trainer.data.rosbag_extrinsics import depth_to_colour_extrinsics
 from trainer.registration import reproject_depth
 
@@ -110,7 +110,7 @@ def read_bag(
     depth_topic: str | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
     every: int = 1,
-) -> WrittenPairs:
+) -> PairsReader:
     """The bag's colour frames with their nearest depth, depth in the colour camera, written under ``out_dir``."""
     from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.typesys import Stores, get_typestore
@@ -123,7 +123,7 @@ def read_bag(
         raise UserError(f"{path}: not a readable ROS bag: {e}") from None
 
 
-def _read(reader: Any, path: Path, out: Path, color_topic, depth_topic, max_gap_s, every) -> WrittenPairs:
+def _read(reader: Any, path: Path, out: Path, color_topic, depth_topic, max_gap_s, every) -> PairsReader:
     streams = _streams(reader)
     colour = _choose(path, streams, color_topic, "colour", lambda s: s.is_colour, ("color", "colour", "rgb"))
     depth = _choose(path, streams, depth_topic, "depth", lambda s: s.is_depth, ("aligned_depth_to_color", "depth"))
@@ -158,7 +158,7 @@ def _read(reader: Any, path: Path, out: Path, color_topic, depth_topic, max_gap_
         + f", gap median {statistics.median(gaps_ms):.1f} ms, max {max(gaps_ms):.1f} ms",
         f"registration: {how}",
     ]
-    return WrittenPairs(pairs, colour_camera, skipped, notes)
+    return written_pairs(path.name, pairs, colour_camera, skipped, notes)
 
 
 def _streams(reader: Any) -> list[Stream]:

@@ -9,7 +9,7 @@ import numpy as np
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.frames import Frame, check_pair, parse_frame_ranges, read_depth_png, read_rgb
+from trainer.data.frames import PairsReader, RecordedPair, parse_frame_ranges
 
 #: 7-Scenes' published depth-camera calibration, used when camera-intrinsics.txt is absent.
 SEVEN_SCENES_DEFAULT = Intrinsics(fx=585.0, fy=585.0, cx=320.0, cy=240.0, width=640, height=480)
@@ -25,35 +25,24 @@ def read_intrinsics_txt(path: Path, width: int, height: int) -> Intrinsics:
     return Intrinsics(fx=k[0, 0], fy=k[1, 1], cx=k[0, 2], cy=k[1, 2], width=width, height=height)
 
 
-class SevenScenesReader:
+class SevenScenesReader(PairsReader):
     """One 7-Scenes sequence folder; ``frames`` selects frame numbers, e.g. '0-799'."""
 
     def __init__(self, root: Path, frames: str | None = None):
         self.root = Path(root)
-        self.name = self.root.name
-        self.licence = LICENCE
         available = {int(m.group(1)): p for p in self.root.iterdir() if (m := _FRAME.match(p.name))}
         if not available:
-            raise FileNotFoundError(f"{self.root}: no frame-NNNNNN.color.jpg files")
+            raise UserError(f"{self.root}: no frame-NNNNNN.color.jpg files")
         wanted = parse_frame_ranges(frames) if frames else sorted(available)
         missing = [n for n in wanted if n not in available]
         if missing:
-            raise FileNotFoundError(f"{self.root}: frames {missing[:5]}{'...' if len(missing) > 5 else ''} are missing")
-        self.colour_paths = [available[n] for n in wanted]
-        self.frame_numbers = wanted
+            raise UserError(f"{self.root}: frames {missing[:5]}{'...' if len(missing) > 5 else ''} are missing")
         k_path = self.root / "camera-intrinsics.txt"
         self.intrinsics = read_intrinsics_txt(k_path, 640, 480) if k_path.exists() else SEVEN_SCENES_DEFAULT
-
-    def __len__(self) -> int:
-        return len(self.colour_paths)
-
-    def __getitem__(self, index: int) -> Frame:
-        colour = self.colour_paths[index]
-        depth_path = colour.with_name(f"frame-{self.frame_numbers[index]:06d}.depth.png")
-        rgb = read_rgb(colour)
-        depth = read_depth_png(depth_path, units_per_metre=1000.0)
-        check_pair(rgb, depth, str(colour))
-        intrinsics = self.intrinsics
-        if (intrinsics.width, intrinsics.height) != (rgb.shape[1], rgb.shape[0]):
-            intrinsics = intrinsics.resized(rgb.shape[1], rgb.shape[0])
-        return Frame(rgb, depth, intrinsics, f"{self.name}/{self.frame_numbers[index]:06d}")
+        pairs = [
+            RecordedPair(
+                f"{n:06d}", available[n], available[n].with_name(f"frame-{n:06d}.depth.png"), 1000.0, self.intrinsics
+            )
+            for n in wanted
+        ]
+        super().__init__(self.root.name, LICENCE, pairs)

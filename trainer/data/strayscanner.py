@@ -26,7 +26,7 @@ from PIL import Image
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.frames import WrittenPairs
+from trainer.data.frames import PairsReader, written_pairs
 from trainer.registration import upsample_depth
 
 #: Frames are written at most this many pixels: more than fit trains at (640x480), less than the video.
@@ -71,7 +71,7 @@ def read_frame_times(path: Path) -> dict[int, float]:
 
 def read_stray_scanner(
     root: Path, out: Path, every: int = 1, min_confidence: int = DEFAULT_MIN_CONFIDENCE
-) -> WrittenPairs:
+) -> PairsReader:
     """Every ``every``-th frame with depth, written under ``out`` as colour JPEG and 16-bit millimetre PNG."""
     root, out = Path(root), Path(out)
     matrix = read_camera_matrix(root / "camera_matrix.csv")
@@ -106,7 +106,7 @@ def read_stray_scanner(
         f"depth: confidence {min_confidence} and up kept, {100 * float(np.mean(kept_share)):.0f}% of depth pixels; "
         f"upsampled from {metres.shape[1]}x{metres.shape[0]} without blending across depth steps",
     ]
-    return WrittenPairs(pairs, camera, skipped, notes)
+    return written_pairs(root.name, pairs, camera, skipped, notes)
 
 
 def _camera(matrix: np.ndarray, width: int, height: int) -> Intrinsics:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.frames import Frame, check_pair, read_depth_png, read_rgb
+from trainer.data.frames import PairsReader, RecordedPair
 
 LICENCE = "TUM RGB-D benchmark: CC BY 4.0"
 DEPTH_UNITS_PER_METRE = 5000.0
@@ -70,27 +70,25 @@ def camera_for(root: Path) -> Intrinsics:
     return TUM_CAMERAS["freiburg3"]
 
 
-class TumReader:
+class TumReader(PairsReader):
     """A TUM RGB-D sequence folder containing rgb.txt, depth.txt and the images."""
 
     def __init__(self, root: Path):
         self.root = Path(root)
-        self.name = self.root.name
-        self.licence = LICENCE
         rgb = read_file_list(self.root / "rgb.txt")
         depth = read_file_list(self.root / "depth.txt")
-        pairs = associate([t for t, _ in rgb], [t for t, _ in depth])
-        if not pairs:
+        matches = associate([t for t, _ in rgb], [t for t, _ in depth])
+        if not matches:
             raise UserError(f"{self.root}: no rgb/depth pair within {MAX_DIFFERENCE_S * 1000:.0f} ms")
-        self.pairs = [(rgb[i], depth[j]) for i, j in pairs]
         self.intrinsics = camera_for(self.root)
-
-    def __len__(self) -> int:
-        return len(self.pairs)
-
-    def __getitem__(self, index: int) -> Frame:
-        (stamp, rgb_file), (_, depth_file) = self.pairs[index]
-        rgb = read_rgb(self.root / rgb_file)
-        depth = read_depth_png(self.root / depth_file, DEPTH_UNITS_PER_METRE)
-        check_pair(rgb, depth, str(self.root / rgb_file))
-        return Frame(rgb, depth, self.intrinsics, f"{self.name}/{stamp:.6f}")
+        pairs = [
+            RecordedPair(
+                f"{rgb[i][0]:.6f}",
+                self.root / rgb[i][1],
+                self.root / depth[j][1],
+                DEPTH_UNITS_PER_METRE,
+                self.intrinsics,
+            )
+            for i, j in matches
+        ]
+        super().__init__(self.root.name, LICENCE, pairs)

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from contract.errors import UserError
-from contract.geometry import ColourCamera, Intrinsics
-from trainer.data.frames import Frame, check_pair, read_depth_png, read_rgb
+from contract.geometry import ColourCamera
+from trainer.data.formats import Recording
+from trainer.data.frames import Frame, RecordedPair, read_pair
 from trainer.data.transforms import resize_frame
-from trainer.fit.recording import RecordedPair, Recording
 from trainer.registration import alignment, fit_colour_camera
 
 #: Median depth a room-scale recording has, in metres; outside it the units are wrong.
@@ -32,14 +32,6 @@ COMMON_DEPTH_SCALES = (1.0, 10.0, 100.0, 1000.0, 4000.0, 5000.0, 10000.0)
 #: recorded, 0.219 fitted); mosd-tabletop, registered in hardware, gains 17% in ``rgb2cloud fit``'s
 #: check (0.271, 0.316), which is the edge measure's noise, not an offset.
 REGISTRATION_GAIN = 0.30
-
-
-def read_pair(pair: RecordedPair) -> Frame:
-    rgb = read_rgb(pair.rgb)
-    depth = read_depth_png(pair.depth, pair.depth_scale)
-    check_pair(rgb, depth, str(pair.rgb))
-    intrinsics = Intrinsics(pair.fx, pair.fy, pair.cx, pair.cy, rgb.shape[1], rgb.shape[0])
-    return Frame(rgb, depth, intrinsics, pair.name)
 
 
 @dataclass

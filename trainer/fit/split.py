@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 from contract.errors import UserError
 from trainer.data.folders import select_frames
-from trainer.fit.recording import RecordedPair
+from trainer.data.frames import RecordedPair
 
 TRAIN_SHARE, GAP_SHARE = 0.75, 0.05
 #: The end of the train part that chooses the checkpoint.

@@ -21,17 +21,17 @@ from tqdm import tqdm
 from contract.card import DataRef, FitRecord, ModelCard, list_versions, load_card, next_version
 from contract.errors import UserError
 from contract.geometry import ColourCamera
+from contract.registries import BUNDLED_VARIABLE, bundled_registry, registry_models, user_registry
 from contract.spec import GeneratorSpec
 from trainer.config import DataSource, RunConfig, migrate_config
-from trainer.data.manifest import ManifestReader
+from trainer.data.formats import ReadOptions, Recording, open_recording
+from trainer.data.frames import read_pair
+from trainer.data.manifest import ManifestReader, write_manifest
 from trainer.fit.budget import Plan, Workload, measure_seconds, plan_training
-from trainer.fit.inspect import inspect_recording, read_pair
-from trainer.fit.recording import ReadOptions, Recording, open_recording, write_manifest
+from trainer.fit.inspect import inspect_recording
 from trainer.fit.scoring import score_holdout
 from trainer.fit.split import Split, split_recording
 
-#: Where the bundled registry is: the checkout's ``weights/``, unless this environment variable names another.
-BUNDLED_REGISTRY_VARIABLE = "RGB2CLOUD_BUNDLED_REGISTRY"
 #: ``--from`` defaults to the newest version of this model in the bundled registry.
 BASE_MODEL = "rgb2cloud-7scenes"
 #: The service shrinks photos above this many pixels for the generator; fit trains at the same scale.
@@ -47,7 +47,8 @@ class FitOptions:
     service_url: str
     budget_min: float = 30.0
     start_from: str | None = None  # a published version folder, "scratch", or None for the bundled base model
-    registry: Path = Path("weights")
+    #: The user's registry (``RGB2CLOUD_REGISTRY``), never the tracked bundled one unless told to.
+    registry: Path = field(default_factory=user_registry)
     format: str | None = None
     read: ReadOptions = field(default_factory=ReadOptions)
     holdout: str | None = None
@@ -81,19 +82,12 @@ class FitState(BaseModel):
         return None if self.start_from == "scratch" else Path(self.start_from)
 
 
-def bundled_registry() -> Path:
-    """The registry shipped with rgb2cloud: ``$RGB2CLOUD_BUNDLED_REGISTRY``, else the checkout's ``weights/``."""
-    return Path(os.environ.get(BUNDLED_REGISTRY_VARIABLE) or Path(__file__).resolve().parents[2] / "weights")
-
-
 def default_start() -> Path:
     """The newest bundled base model, where ``--from`` is not given."""
     registry = bundled_registry()
     versions = list_versions(registry, BASE_MODEL)
     if not versions:
-        raise UserError(
-            f"{registry}: no bundled {BASE_MODEL} to start from; pass --from, or set {BUNDLED_REGISTRY_VARIABLE}"
-        )
+        raise UserError(f"{registry}: no bundled {BASE_MODEL} to start from; pass --from, or set {BUNDLED_VARIABLE}")
     return registry / BASE_MODEL / versions[-1]
 
 
@@ -150,6 +144,7 @@ def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
         raise UserError(f"{run}: a fit is already there; add --resume to continue it, or pass --out elsewhere")
     if not options.licence.strip():
         raise UserError("--licence is required: the terms under which the recording may be used")
+    _check_name(options.name, options.registry)
     state = FitState.model_validate_json(state_file.read_text()) if options.resume else None
     if state is not None and state.published:
         raise UserError(
@@ -173,6 +168,13 @@ def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
     for line in _serve_lines(options.registry, options.name, target.name, options.service_url):
         echo(line)
     return target
+
+
+def _check_name(name: str, registry: Path) -> None:
+    """Refuse a bundled model's name: the service would serve the user's versions in its place."""
+    bundled = bundled_registry()
+    if name in registry_models(bundled) and Path(registry).resolve() != bundled.resolve():
+        raise UserError(f"--name {name}: a bundled model has this name ({bundled / name}); choose another")
 
 
 def _prepare(options: FitOptions, run: Path, progress: Progress, started: float) -> FitState:
@@ -295,7 +297,7 @@ def _train_score_publish(options: FitOptions, state: FitState, progress: Progres
     frames = sum(part["frames"] for part in state.split.values())
     data = [DataRef(name=Path(state.data).name, format=state.format, frames=f"{frames} pairs", licence=state.licence)]
     data += lineage(start) if start else []
-    parity_image = Path(ManifestReader(holdout.root).rows[0][0])  # the manifest holds absolute paths
+    parity_image = ManifestReader(holdout.root).pairs[0].rgb
     target = export_and_publish(
         checkpoint, options.registry, options.name, version, metrics, parity_image, data=data, fit=record
     )
@@ -322,7 +324,7 @@ def _checkpoint_step(path: Path) -> int:
 def _serve_lines(registry: Path, name: str, version: str, url: str) -> list[str]:
     return [
         "",
-        f"A service running on {registry} serves it now, without a restart:",
+        f"A service whose RGB2CLOUD_REGISTRY is {registry} serves it now, without a restart:",
         f'  curl -sS -F image=@photo.jpg "{url}/depth?model={name}:{version}" -o depth.png',
         f'  curl -sS -F image=@photo.jpg "{url}/pointcloud?model={name}:{version}" -o cloud.ply',
         "Or start one with it as the default model:",

@@ -1,0 +1,206 @@
+"""The one place recording formats are told apart and opened, for ``train``, ``evaluate`` and ``fit`` alike.
+
+Every format is listed as colour/depth file pairs (a ``PairsReader``): the layouts on
+disk as they are, and bags and phone exports after their frames are written out as
+files (depth already moved into the colour camera). Only NYU's ``.mat`` is read as
+arrays where no folder to write to is given. ``fit`` keeps the pairs and writes its
+splits as CSV manifests, so the split is a file anyone can open; ``train`` and
+``evaluate`` read a config's ``DataSource`` through the same ``open_pairs``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from contract.errors import UserError
+from trainer.config import DataSource
+from trainer.data.folders import CameraFile, FoldersReader, colour_folder, is_folders_layout, select_frames
+from trainer.data.frames import Frame, FrameReader, PairsReader, RecordedPair
+from trainer.data.manifest import ManifestReader
+from trainer.data.nyu import NyuReader
+from trainer.data.record3d import is_record3d, read_record3d
+from trainer.data.rosbag import DEFAULT_MAX_GAP_S, is_bag, read_bag
+from trainer.data.sevenscenes import SevenScenesReader
+from trainer.data.strayscanner import DEFAULT_MIN_CONFIDENCE, is_stray_scanner, read_stray_scanner
+from trainer.data.tum import TumReader
+from trainer.registration import ColourCamera, register_frame
+
+FORMATS = ("folders", "tum", "7scenes", "nyu", "csv", "rosbag", "strayscanner", "record3d")
+#: Formats whose reader writes frames out as files before they can be listed.
+WRITTEN = ("rosbag", "strayscanner", "record3d")
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """How to read a recording beyond its layout: the camera, a bag's topics and pairing, thinning."""
+
+    camera: CameraFile = field(default_factory=CameraFile)
+    color_topic: str | None = None
+    depth_topic: str | None = None
+    max_gap_s: float = DEFAULT_MAX_GAP_S
+    min_confidence: int = DEFAULT_MIN_CONFIDENCE
+    every: int = 1
+
+
+@dataclass
+class Recording:
+    """The pairs of one recording in time order, what was skipped and why, and where it came from."""
+
+    root: Path
+    format: str
+    pairs: list[RecordedPair]
+    skipped: list[tuple[str, str]]
+    licence: str | None
+    #: What the reader found that a user should see (a bag's topics, rates, pairing gaps, registration).
+    notes: list[str] = field(default_factory=list)
+
+
+def detect_format(root: Path) -> str:
+    """The layout of ``root``, or a ValueError that says what was found and what was expected."""
+    root = Path(root)
+    if not root.exists():
+        raise UserError(f"{root}: no such file or folder")
+    if is_bag(root):
+        return "rosbag"
+    if is_stray_scanner(root):
+        return "strayscanner"
+    if is_record3d(root):
+        return "record3d"
+    if root.is_file():
+        if root.suffix == ".csv":
+            return "csv"
+        if root.suffix == ".mat":
+            return "nyu"
+        raise UserError(
+            f"{root}: a file, but not a .csv manifest, an NYU .mat, a ROS bag (.bag, .mcap, .db3) or a Record3D .r3d"
+        )
+    if is_folders_layout(root):
+        return "folders"
+    if (colours := colour_folder(root)) is not None:
+        raise UserError(
+            f"{root}: {colours.name}/ but no depth/ folder: fit needs depth images (16-bit PNG) beside the photos"
+        )
+    if (root / "rgb.txt").is_file() and (root / "depth.txt").is_file():
+        return "tum"
+    if any(root.glob("frame-*.color.*")):
+        return "7scenes"
+    found = sorted(p.name + ("/" if p.is_dir() else "") for p in root.iterdir())[:8]
+    raise UserError(
+        f"{root}: cannot tell its layout (found {', '.join(found) or 'nothing'}); expected color/ (or rgb/, "
+        "image/) and depth/ folders, a TUM sequence (rgb.txt, depth.txt), 7-Scenes frame-NNNNNN.color.jpg "
+        "files, a ROS 2 bag folder (metadata.yaml), a .csv manifest or an NYU .mat; or pass --format"
+    )
+
+
+def open_pairs(root: Path, format: str, options: ReadOptions, scratch: Path | None) -> PairsReader:
+    """The pairs of the recording at ``root``; ``options.camera`` overrides its intrinsics and depth scale.
+
+    ``scratch`` is where a bag's, a phone export's and NYU's frames are written out as files.
+    """
+    root = Path(root)
+    if format not in FORMATS:
+        raise UserError(f"format {format!r}: expected one of {', '.join(FORMATS)}")
+    if scratch is None and (format in WRITTEN or format == "nyu"):
+        raise UserError(f"{root}: {format} frames are written out before training; fit one with rgb2cloud fit")
+    if format in WRITTEN:
+        reader = _written(root, format, options, Path(scratch) / f"{format}-frames")
+    elif format == "folders":
+        reader = FoldersReader(root, options.camera)
+    elif format == "csv":
+        reader = ManifestReader(root)
+    elif format == "tum":
+        reader = TumReader(root)
+    elif format == "7scenes":
+        reader = SevenScenesReader(root)
+    else:
+        reader = _nyu_files(root, Path(scratch) / "nyu-frames")
+    if format != "folders":  # the folders reader merges the camera with its intrinsics.json itself
+        # Frames written out here are in millimetres whatever the recording's units were.
+        camera = replace(options.camera, depth_scale=None) if format in (*WRITTEN, "nyu") else options.camera
+        reader.pairs = [_overridden(p, camera) for p in reader.pairs]
+    return reader
+
+
+def open_recording(root: Path, format: str | None, options: ReadOptions, scratch: Path) -> Recording:
+    """Every ``options.every``-th pair of the recording at ``root``, in any of ``FORMATS`` (detected if None)."""
+    root = Path(root)
+    format = format or detect_format(root)
+    reader = open_pairs(root, format, options, scratch)
+    pairs, notes = reader.pairs, list(reader.notes)
+    if options.every > 1 and format not in WRITTEN:  # written readers thin before they write
+        pairs = pairs[:: options.every]
+        notes.append(f"every {options.every}th pair kept: {len(pairs)}")
+    return Recording(root, format, pairs, reader.skipped, reader.licence or None, notes)
+
+
+def _overridden(pair: RecordedPair, camera: CameraFile) -> RecordedPair:
+    """``pair`` with every intrinsic and the depth scale that ``camera`` sets."""
+    k = pair.camera
+    merged = CameraFile(k.fx, k.fy, k.cx, k.cy, pair.depth_scale).merged(camera)
+    if merged == CameraFile(k.fx, k.fy, k.cx, k.cy, pair.depth_scale):
+        return pair
+    return replace(pair, camera=merged.intrinsics(k.width, k.height, pair.rgb), depth_scale=merged.depth_scale)
+
+
+def _written(root: Path, format: str, options: ReadOptions, out: Path) -> PairsReader:
+    """A recording whose reader writes its frames out first: a ROS bag, a Stray Scanner or Record3D export."""
+    if format == "rosbag":
+        return read_bag(root, out, options.color_topic, options.depth_topic, options.max_gap_s, options.every)
+    read = read_stray_scanner if format == "strayscanner" else read_record3d
+    return read(root, out, options.every, options.min_confidence)
+
+
+def _nyu_files(root: Path, folder: Path) -> PairsReader:
+    """NYU's frames written out as a colour PNG and a millimetre depth PNG each (once)."""
+    reader = NyuReader(root, "all")
+    folder.mkdir(parents=True, exist_ok=True)
+    pairs = []
+    for i in range(len(reader)):
+        rgb, depth = folder / f"{i:05d}.png", folder / f"{i:05d}.depth.png"
+        frame = reader[i]
+        if not depth.exists():
+            Image.fromarray(frame.rgb).save(rgb)
+            Image.fromarray(np.clip(np.rint(frame.depth * 1000), 0, 65535).astype(np.uint16)).save(depth)
+        pairs.append(RecordedPair(f"{i:05d}", rgb, depth, 1000.0, frame.intrinsics))
+    return PairsReader(reader.name, reader.licence, pairs)
+
+
+class RegisteredReader:
+    """A reader whose frames carry depth moved into a colour camera (``register_frame``)."""
+
+    def __init__(self, reader: FrameReader, colour: ColourCamera):
+        self.reader, self.colour = reader, colour
+        self.name, self.licence = reader.name, reader.licence
+
+    def __len__(self) -> int:
+        return len(self.reader)
+
+    def __getitem__(self, index: int) -> Frame:
+        return register_frame(self.reader[index], self.colour)
+
+
+def open_source(source: DataSource) -> FrameReader:
+    """A config's data source as frames: ``open_pairs`` for every file layout, NYU's split as arrays."""
+    if source.format == "nyu":
+        reader: FrameReader = NyuReader(source.root, source.split, source.splits_file)
+    elif source.format == "7scenes":
+        reader = SevenScenesReader(source.root, source.frames)  # 7-Scenes selects by frame number
+    else:
+        pairs = open_pairs(source.root, source.format, ReadOptions(camera=source.camera or CameraFile()), None)
+        reader = pairs.selected(select_frames([p.name for p in pairs.pairs], source.frames)) if source.frames else pairs
+    if source.licence:
+        reader.licence = source.licence
+    if source.colour_camera:
+        return RegisteredReader(reader, source.colour_camera)
+    return reader
+
+
+def describe(source: DataSource) -> str:
+    """A short human label: '7scenes-redkitchen 850-999', 'nyu test', ..."""
+    reader_name = source.root.name if source.format != "nyu" else "nyu-depth-v2"
+    selection = source.frames or (source.split if source.format == "nyu" else "all")
+    return f"{reader_name} {selection}"
