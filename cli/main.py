@@ -123,51 +123,66 @@ def export(
     typer.echo(f"published {target}")
 
 
+# fit's longer options, named here so that the command reads as its list of options.
+FitFrom = Annotated[
+    str | None,
+    typer.Option("--from", help="a published version folder to start from, or 'scratch' (default: the bundled base)"),
+]
+FitFormat = Annotated[
+    str | None,
+    typer.Option(help="folders | tum | 7scenes | nyu | csv | rosbag | strayscanner | record3d (default: detected)"),
+]
+Holdout = Annotated[
+    str | None, typer.Option(help="held-out frames instead of the last 20%: names, globs or ranges, e.g. 'test*'")
+]
+Gap = Annotated[int | None, typer.Option(help="frames dropped next to the held-out ones (default 5%)", min=0)]
+DepthTopic = Annotated[
+    str | None, typer.Option(help="a bag's depth image topic (default: found; aligned to colour preferred)")
+]
+MaxGapMs = Annotated[
+    float, typer.Option(help="a bag's colour and depth frames further apart than this are not a pair", min=0)
+]
+MinConfidence = Annotated[
+    int, typer.Option(help="Stray Scanner, Record3D: keep depth pixels of this LiDAR confidence and up", min=0, max=2)
+]
+Register = Annotated[
+    str, typer.Option(help="auto: register depth to colour when a fitted colour camera aligns better; yes; no")
+]
+RecipeChanges = Annotated[
+    list[str], typer.Option("--set", "-s", help="change the start's recipe, e.g. -s loss.l1_depth=50 (repeatable)")
+]
+Steps = Annotated[
+    int | None,
+    typer.Option(help="train exactly this many steps, however long they take (default: the budget's)", min=1),
+]
+
+
 @app.command()
 def fit(
     data: Annotated[Path, typer.Argument(help="the recording: a folder (color/ + depth/, TUM, 7-Scenes) or a file")],
     name: Annotated[str, typer.Option(help="the model's name in the registry")],
     licence: Annotated[str, typer.Option(help="the terms the recording may be used under (required)")],
     budget: Annotated[float, typer.Option(help="minutes, wall clock, for the whole command", min=1)] = 30.0,
-    from_: Annotated[
-        str | None,
-        typer.Option(
-            "--from", help="a published version folder to start from, or 'scratch' (default: the bundled base)"
-        ),
-    ] = None,
+    from_: FitFrom = None,
     registry: Annotated[Path | None, typer.Option(help=REGISTRY_HELP)] = None,
-    format: Annotated[
-        str | None,
-        typer.Option(help="folders | tum | 7scenes | nyu | csv | rosbag | strayscanner | record3d (default: detected)"),
-    ] = None,
+    format: FitFormat = None,
     fx: Annotated[float | None, typer.Option(help="focal length x in pixels (overrides intrinsics.json)")] = None,
     fy: Annotated[float | None, typer.Option(help="focal length y in pixels")] = None,
     cx: Annotated[float | None, typer.Option(help="principal point x in pixels")] = None,
     cy: Annotated[float | None, typer.Option(help="principal point y in pixels")] = None,
     depth_scale: Annotated[float | None, typer.Option(help="raw depth units per metre (1000: millimetres)")] = None,
-    holdout: Annotated[
-        str | None, typer.Option(help="held-out frames instead of the last 20%: names, globs or ranges, e.g. 'test*'")
-    ] = None,
-    gap: Annotated[
-        int | None, typer.Option(help="frames dropped next to the held-out ones (default 5%)", min=0)
-    ] = None,
+    holdout: Holdout = None,
+    gap: Gap = None,
     color_topic: Annotated[str | None, typer.Option(help="a bag's colour image topic (default: found)")] = None,
-    depth_topic: Annotated[
-        str | None, typer.Option(help="a bag's depth image topic (default: found; aligned to colour preferred)")
-    ] = None,
-    max_gap_ms: Annotated[
-        float, typer.Option(help="a bag's colour and depth frames further apart than this are not a pair", min=0)
-    ] = 20.0,
-    min_confidence: Annotated[
-        int,
-        typer.Option(help="Stray Scanner, Record3D: keep depth pixels of this LiDAR confidence and up", min=0, max=2),
-    ] = 2,
+    depth_topic: DepthTopic = None,
+    max_gap_ms: MaxGapMs = 20.0,
+    min_confidence: MinConfidence = 2,
     every: Annotated[int, typer.Option(help="keep every Nth pair of a long recording", min=1)] = 1,
-    register: Annotated[
-        str, typer.Option(help="auto: register depth to colour when a fitted colour camera aligns better; yes; no")
-    ] = "auto",
+    register: Register = "auto",
     out: Annotated[Path | None, typer.Option(help="run folder (default runs/fit/NAME)")] = None,
     resume: Annotated[bool, typer.Option(help="continue an interrupted fit from its last checkpoint")] = False,
+    set_: RecipeChanges = [],  # noqa: B006
+    steps: Steps = None,
 ) -> None:
     """Fit a model of your space from a short RGB-D recording, score it honestly, and publish it."""
     from app.client import service_url
@@ -196,6 +211,8 @@ def fit(
         registration=register,
         out=out,
         resume=resume,
+        overrides=set_,
+        steps=steps,
     )
     try:
         run(options, typer.echo)

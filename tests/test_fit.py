@@ -141,15 +141,14 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
 
 #: ``rgb2cloud ARGS`` whose process sends itself SIGINT (Ctrl-C) after the first training step that
 #: follows its first checkpoint: the interruption lands mid-training on any machine, however fast or
-#: loaded. The plan is fixed (40 steps, a checkpoint every 4), so the machine's speed cannot decide
-#: whether a checkpoint comes before the end.
+#: loaded. The test fixes the plan with ``--steps 40`` (a checkpoint every 4, a tenth of the steps), so
+#: the machine's speed cannot decide whether a checkpoint comes before the end.
 CTRL_C_AFTER_FIRST_CHECKPOINT = """
 import os, signal, sys
 from pathlib import Path
 
 import trainer.fit.workflow as workflow
 from cli.main import main
-from trainer.fit.budget import Plan
 
 last, *sys.argv[1:] = sys.argv[1:]
 tick = workflow.Progress.tick
@@ -159,10 +158,6 @@ tick = workflow.Progress.tick
 signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-def fixed_plan(budget_s, spent_s, step_s, work):
-    return Plan(budget_s, step_s, 3 * budget_s, 40, 20, 10, 4, 3 * budget_s)
-
-
 def tick_then_interrupt(self, *step):
     tick(self, *step)
     if step and Path(last).exists():
@@ -170,7 +165,6 @@ def tick_then_interrupt(self, *step):
 
 
 workflow.Progress.tick = tick_then_interrupt
-workflow.plan_training = fixed_plan
 main()
 """
 
@@ -178,19 +172,20 @@ main()
 @pytest.mark.slow
 def test_an_interrupted_fit_resumes_where_it_stopped(registry, tmp_path):
     data = write_recording(tmp_path / "rec", 24, open3d=False)
-    args = fit_args(data, tmp_path, registry / "tiny" / "0.1.0")
+    args = [*fit_args(data, tmp_path, registry / "tiny" / "0.1.0"), "--steps", "40", "--set", "loss.l1_depth=7"]
     last = tmp_path / "run" / "train" / "checkpoints" / "last.pt"
     command = [sys.executable, "-c", CTRL_C_AFTER_FIRST_CHECKPOINT, str(last), *args]
     interrupted = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=300)
     stderr = interrupted.stderr
     assert interrupted.returncode == 130 and "--resume" in stderr and "Traceback" not in stderr, stderr
+    assert "plan: 40 steps as given" in interrupted.stdout
     stopped_at = torch.load(last, weights_only=True)["step"]
     assert stopped_at == 4  # the first checkpoint; the interruption came at step 5 of 40
     assert "a fit is already there; add --resume" in refused(*args)
     result = run_cli(*args, "--resume")
     assert f"resuming at step {stopped_at} of" in result.stdout + result.stderr
     card = load_card(tmp_path / "registry" / "my-room" / "0.1.0")
-    assert card.training.steps == 40
+    assert card.training.steps == 40 and card.training.config["loss"]["l1_depth"] == 7  # --set changed the recipe
     # Finished: resuming again publishes nothing and says what was published.
     message = refused(*args, "--resume")
     assert "this fit finished and published" in message and "my-room/0.1.0" in message

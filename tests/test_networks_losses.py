@@ -151,3 +151,50 @@ def test_holes_carry_no_signal():
     weights = patch_weights(torch.zeros(1, 1, 32, 32), outputs)
     assert GANLoss("lsgan")(outputs, True, weights).item() == 0.0
     assert feature_matching(outputs, d(torch.randn(1, 4, 32, 32)), weights).item() == 0.0
+
+
+def test_mixed_precision_on_a_cpu_is_bf16_only_where_it_is_native(monkeypatch, caplog):
+    import trainer.gan as gan
+
+    cpu = torch.device("cpu")
+    monkeypatch.setattr(gan, "native_bf16", lambda: True)
+    assert gan.Precision.for_device(cpu, True) == gan.Precision(True, torch.bfloat16)
+    assert not gan.Precision.for_device(cpu, False).enabled
+    monkeypatch.setattr(gan, "native_bf16", lambda: False)
+    gan._say_fp32.cache_clear()
+    with caplog.at_level("WARNING", logger="rgb2cloud.train"):
+        assert not gan.Precision.for_device(cpu, True).enabled
+        assert not gan.Precision.for_device(cpu, True).enabled
+    assert [r.getMessage() for r in caplog.records] == [
+        "mixed precision: this CPU has no AVX512-BF16 or AMX, so training runs in fp32"
+    ]  # one line, however often it is asked
+
+
+def test_without_adversarial_terms_the_discriminator_is_never_run(tmp_path):
+    from conftest import tiny_config
+
+    from trainer.config import LossConfig, RunConfig
+    from trainer.gan import Precision, build_networks, gan_step
+
+    config = RunConfig.model_validate(tiny_config(tmp_path))
+    generator, discriminator, opt_g, opt_d = build_networks(config, torch.device("cpu"))
+    before = [p.detach().clone() for p in discriminator.parameters()]
+    discriminator.forward = None  # calling it would fail
+    h, w = config.data.transform.size
+    batch = {"rgb": torch.rand(2, 3, h, w), "depth": torch.rand(2, 1, h, w), "valid": torch.ones(2, 1, h, w)}
+    loss = LossConfig(gan=0, feature_matching=0, l1_depth=100)
+    scaler = torch.amp.GradScaler("cpu", enabled=False)
+    losses = gan_step(
+        generator,
+        discriminator,
+        (opt_g, opt_d),
+        scaler,
+        GANLoss("lsgan"),
+        loss,
+        batch,
+        Precision(False, torch.bfloat16),
+    )
+    assert set(losses) == {"G_l1"}
+    assert all(torch.equal(a, b) for a, b in zip(before, discriminator.parameters(), strict=True))
+    with pytest.raises(ValueError, match="nothing would be learned"):
+        LossConfig(gan=0, feature_matching=0, l1_depth=0)

@@ -41,8 +41,20 @@ class LossConfig(Strict):
     gan_mode: Literal["lsgan", "vanilla"] = Field(
         "lsgan", description="lsgan (pix2pixHD default) or vanilla (formula (2), log-likelihood)"
     )
+    gan: float = Field(1.0, ge=0, description="weight of the cGAN term (the paper's 1)")
     feature_matching: float = Field(10.0, ge=0, description="mu in the paper")
     l1_depth: float = Field(0.0, ge=0, description="beyond the paper, opt-in: masked L1 between encoded depths")
+
+    @property
+    def adversarial(self) -> bool:
+        """Whether the discriminator takes part: with neither cGAN nor feature matching it is never run."""
+        return self.gan > 0 or self.feature_matching > 0
+
+    @model_validator(mode="after")
+    def _something_to_learn(self) -> LossConfig:
+        if not self.adversarial and self.l1_depth == 0:
+            raise ValueError("loss: gan, feature_matching and l1_depth are all 0; nothing would be learned")
+        return self
 
 
 class OptimConfig(Strict):
@@ -111,7 +123,9 @@ class TrainConfig(Strict):
     num_workers: int = Field(2, ge=0)
     seed: int = 0
     device: Literal["auto", "cpu", "cuda"] = "auto"
-    amp: bool = Field(True, description="mixed precision on CUDA (ignored on CPU)")
+    amp: bool = Field(
+        True, description="mixed precision: bf16 on CUDA (fp16 where it lacks bf16) and on CPUs with AVX512-BF16 or AMX"
+    )
     log_every: int = Field(10, ge=1)
     val_every: int = Field(500, ge=1)
     checkpoint_every: int = Field(500, ge=1)

@@ -9,6 +9,8 @@ hooks simple.
 
 from __future__ import annotations
 
+import functools
+import logging
 from dataclasses import dataclass
 
 import torch
@@ -16,7 +18,10 @@ from torch import nn
 
 from trainer.config import LossConfig, RunConfig
 from trainer.losses import GANLoss, feature_matching, fill_holes, masked_l1, patch_weights
+from trainer.machine import native_bf16
 from trainer.networks import GlobalGenerator, MultiscaleDiscriminator
+
+log = logging.getLogger("rgb2cloud.train")
 
 
 def init_weights(module: nn.Module) -> None:
@@ -36,7 +41,8 @@ def _split(outputs: list[list[torch.Tensor]], n: int) -> tuple[list[list[torch.T
 
 @dataclass(frozen=True)
 class Precision:
-    """Mixed precision on CUDA (bf16 where supported, else fp16 with a gradient scaler); fp32 elsewhere."""
+    """Mixed precision: bf16 autocast on CUDA where supported (else fp16 with a gradient scaler), and on
+    CPUs that multiply bf16 in hardware (AVX512-BF16, AMX); fp32 elsewhere."""
 
     enabled: bool
     dtype: torch.dtype
@@ -48,8 +54,18 @@ class Precision:
 
     @classmethod
     def for_device(cls, device: torch.device, wanted: bool) -> Precision:
-        enabled = wanted and device.type == "cuda"
-        return cls(enabled, torch.bfloat16 if enabled and torch.cuda.is_bf16_supported() else torch.float16)
+        if device.type == "cuda":
+            enabled = wanted
+            return cls(enabled, torch.bfloat16 if enabled and torch.cuda.is_bf16_supported() else torch.float16)
+        if wanted and not native_bf16():
+            _say_fp32()
+        return cls(wanted and native_bf16(), torch.bfloat16)
+
+
+@functools.cache
+def _say_fp32() -> None:
+    """One log line per process for a CPU that cannot run bf16 in hardware."""
+    log.warning("mixed precision: this CPU has no AVX512-BF16 or AMX, so training runs in fp32")
 
 
 def build_networks(
@@ -86,21 +102,28 @@ def gan_step(
     x, real, valid = batch["rgb"], batch["depth"], batch["valid"]
     n = x.shape[0]
     device_type = x.device.type
-    # Generator: fool D and match its features on real pairs.
+    # Generator: fool D and match its features on real pairs (when D takes part), and the masked L1.
     with torch.autocast(device_type, dtype=amp.dtype, enabled=amp.enabled):
         fake = generator(x)
-        real_filled = fill_holes(real, fake, valid)
-        pairs = torch.cat([torch.cat([x, fake], 1), torch.cat([x, real_filled], 1)], 0)
-        pred_fake, pred_real = _split(discriminator(pairs), n)
-        weights = patch_weights(valid, pred_real)
-        losses = {"G_gan": gan_loss(pred_fake, True), "G_fm": feature_matching(pred_fake, pred_real, weights)}
-        loss_g = losses["G_gan"] + loss.feature_matching * losses["G_fm"]
+        losses: dict[str, torch.Tensor] = {}
+        loss_g = torch.zeros((), device=x.device)
+        if loss.adversarial:
+            real_filled = fill_holes(real, fake, valid)
+            pairs = torch.cat([torch.cat([x, fake], 1), torch.cat([x, real_filled], 1)], 0)
+            pred_fake, pred_real = _split(discriminator(pairs), n)
+            weights = patch_weights(valid, pred_real)
+            losses["G_gan"] = gan_loss(pred_fake, True)
+            losses["G_fm"] = feature_matching(pred_fake, pred_real, weights)
+            loss_g = loss.gan * losses["G_gan"] + loss.feature_matching * losses["G_fm"]
         if loss.l1_depth > 0:
             losses["G_l1"] = masked_l1(fake, real, valid)
             loss_g = loss_g + loss.l1_depth * losses["G_l1"]
     opt_g.zero_grad(set_to_none=True)
     scaler.scale(loss_g).backward()
     scaler.step(opt_g)
+    if not loss.adversarial:
+        scaler.update()
+        return losses
 
     # Discriminator: the same fake batch (detached) against real pairs with holes filled.
     with torch.autocast(device_type, dtype=amp.dtype, enabled=amp.enabled):

@@ -57,8 +57,16 @@ class Plan:
     checkpoint_every: int
     #: Seconds after the start of the command by which training must stop.
     deadline_s: float
+    #: The steps were given (``fit --steps``), not fitted to the budget: training runs them all.
+    fixed: bool = False
 
     def line(self) -> str:
+        if self.fixed:
+            return (
+                f"plan: {self.steps} steps as given, about {self.steps * self.step_s / 60:.1f} min at "
+                f"{self.step_s:.2f} s each (the budget does not stop them), learning rate decaying to zero from "
+                f"step {self.decay_start}"
+            )
         return (
             f"plan: {self.steps} steps of {self.step_s:.2f} s ({self.train_s / 60:.1f} of {self.budget_s / 60:.1f} "
             f"min), learning rate decaying to zero from step {self.decay_start}"
@@ -124,10 +132,15 @@ class Workload:
         return models * self.holdout_frames * self.predict_s + export_s + SCORING_OVERHEAD_S
 
 
-def plan_training(budget_s: float, spent_s: float, step_s: float, work: Workload) -> Plan:
-    """Steps that fit what is left of the budget once validation, scoring and export are set aside."""
+def plan_training(budget_s: float, spent_s: float, step_s: float, work: Workload, steps: int | None = None) -> Plan:
+    """Steps that fit what is left of the budget once validation, scoring and export are set aside.
+
+    ``steps`` fixes the count instead (the same plan on another machine, or a comparison at equal
+    steps); training then runs them all, however long they take.
+    """
     train_s = budget_s - spent_s - work.tail_s() - work.validation_s()
-    steps = int(train_s / step_s)
+    fixed = steps is not None
+    steps = steps if fixed else int(train_s / step_s)
     if steps < 1:
         raise UserError(
             f"the budget of {budget_s / 60:.1f} min leaves no time to train: {spent_s:.0f} s went to reading and "
@@ -145,4 +158,5 @@ def plan_training(budget_s: float, spent_s: float, step_s: float, work: Workload
         val_every=max(1, steps // VALIDATIONS),
         checkpoint_every=min(per_checkpoint, steps),
         deadline_s=budget_s - work.tail_s(),
+        fixed=fixed,
     )

@@ -23,7 +23,7 @@ from contract.errors import UserError
 from contract.geometry import ColourCamera
 from contract.registries import BUNDLED_VARIABLE, bundled_registry, registry_models, user_registry
 from contract.spec import GeneratorSpec
-from trainer.config import DataSource, RunConfig, migrate_config
+from trainer.config import DataSource, RunConfig, apply_overrides, migrate_config
 from trainer.data.formats import ReadOptions, Recording, open_recording
 from trainer.data.frames import read_pair
 from trainer.data.manifest import ManifestReader, write_manifest
@@ -51,6 +51,10 @@ class FitOptions:
     registry: Path = field(default_factory=user_registry)
     format: str | None = None
     read: ReadOptions = field(default_factory=ReadOptions)
+    #: ``section.key=value`` changes to the start's recipe (``train``'s override syntax).
+    overrides: list[str] = field(default_factory=list)
+    #: Train exactly this many steps instead of what the budget allows.
+    steps: int | None = None
     holdout: str | None = None
     gap_frames: int | None = None
     registration: str = "auto"
@@ -194,7 +198,7 @@ def _prepare(options: FitOptions, run: Path, progress: Progress, started: float)
     radius = config.inference.median_radius
     taps = (2 * radius + 1) ** 2 if radius else 0
     work = Workload(len(split.selection), len(split.holdout), predict_s, start is not None, taps)
-    plan = plan_training(options.budget_min * 60, time.monotonic() - started, step_s, work)
+    plan = plan_training(options.budget_min * 60, time.monotonic() - started, step_s, work, options.steps)
     progress.say(plan.line())
     config.train = config.train.model_copy(
         update={"steps": plan.steps, "val_every": plan.val_every, "checkpoint_every": plan.checkpoint_every}
@@ -257,7 +261,7 @@ def _run_config(
         "select_metric": "rel",
         "start_from": str(start) if start else None,
     }
-    return RunConfig.model_validate(tree)
+    return RunConfig.model_validate(apply_overrides(tree, options.overrides))
 
 
 def _train_score_publish(options: FitOptions, state: FitState, progress: Progress) -> Path:
@@ -266,9 +270,10 @@ def _train_score_publish(options: FitOptions, state: FitState, progress: Progres
 
     config, plan = state.config, state.plan
     progress.phase("training")
-    deadline = progress.started + plan.deadline_s
-    if options.resume:  # a fresh stretch of the budget for what is left: at most the whole training time
-        deadline = time.monotonic() + plan.train_s
+    deadline = None if plan.fixed else progress.started + plan.deadline_s
+    if options.resume:
+        if not plan.fixed:  # a fresh stretch of the budget for what is left: at most the whole training time
+            deadline = time.monotonic() + plan.train_s
         done = _checkpoint_step(Path(config.train.out_dir) / "checkpoints" / "last.pt")
         progress.say(f"resuming at step {done} of {plan.steps}")
     summary = train(config, resume=options.resume, report=progress.tick, deadline=deadline)

@@ -1,0 +1,114 @@
+"""Fit-quality levers, each judged by the rule in docs/research.md: 10-minute fits on the development sites.
+
+    python bench/fit_levers.py [--levers baseline bf16 ...] [--budget 10] [--markdown FILE]
+
+The baseline is today's recipe (fp32 on a CPU) fitted for the budget; its plan's step count
+is then given to every quality lever (``fit --steps``), so a busy machine cannot decide a
+quality comparison. A speed lever is fitted for the same wall clock, its plan measured as
+fit measures it. Each lever is a set of ``fit --set`` changes to the start's recipe. A lever is
+kept only if aims-lab δ1 rises by at least 0.01 and mosd-tabletop δ1 falls by no more than 0.005.
+Runs and their published versions go to ``runs/bench-levers/``; a fit already published is reused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from harness.fitting import REPO, SITES, fit_once, report
+
+OUT = REPO / "runs" / "bench-levers"
+GAIN, COST = 0.01, 0.005
+
+
+@dataclass(frozen=True)
+class Lever:
+    """One change to the recipe: its ``fit --set`` overrides, and whether it is judged by speed or quality."""
+
+    name: str
+    kind: str  # "speed" (same wall clock) or "quality" (same steps)
+    changes: tuple[str, ...]
+    why: str
+
+
+FP32 = ("train.amp=false",)
+LEVERS = {
+    lever.name: lever
+    for lever in [
+        Lever("baseline", "both", FP32, "today's recipe: 0.8.1's, fp32 on a CPU"),
+        Lever("bf16", "speed", ("train.amp=true",), "bf16 autocast on a CPU that multiplies bf16 in hardware"),
+        Lever(
+            "no-discriminator",
+            "speed",
+            (*FP32, "loss.gan=0", "loss.feature_matching=0"),
+            "the masked L1 alone: no discriminator forward and backward, twice per step",
+        ),
+        Lever(
+            "narrower-views",
+            "quality",
+            (*FP32, "data.transform.size=[176,240]"),
+            "crops of 0.75 of the frame per side at the same focal length: views narrower than the whole frame",
+        ),
+    ]
+}
+
+
+def fit_site(lever: Lever, site: str, budget: float, steps: int | None) -> dict:
+    """One fit of ``site`` with ``lever``; its held-out δ1 and REL and the steps it trained."""
+    from contract.card import load_card
+
+    name = f"{lever.name}-{site}"
+    options = [*SITES[site][1:], "--budget", f"{budget:g}", *(a for c in lever.changes for a in ("--set", c))]
+    if steps is not None:
+        options += ["--steps", str(steps)]
+    version = fit_once(Path(SITES[site][0]), name, OUT, *options)
+    fitted = next(m for m in load_card(version).metrics if m.label is None)
+    plan = json.loads((OUT / "runs" / name / "fit.json").read_text())["plan"]
+    return {"delta1": fitted.delta1, "rel": fitted.rel, "steps": plan["steps"]}
+
+
+def verdict(lever: Lever, scores: dict[str, dict], base: dict[str, dict]) -> str:
+    """The rule: aims-lab up by GAIN and mosd-tabletop down by no more than COST."""
+    if lever.name == "baseline":
+        return "—"
+    gain = scores["aims-lab"]["delta1"] - base["aims-lab"]["delta1"]
+    cost = base["mosd-tabletop"]["delta1"] - scores["mosd-tabletop"]["delta1"]
+    return "kept" if gain >= GAIN and cost <= COST else "not kept"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--levers", nargs="+", default=list(LEVERS), choices=list(LEVERS))
+    parser.add_argument("--budget", type=float, default=10.0, help="minutes of each fit")
+    parser.add_argument("--markdown", type=Path, help="also write the table here")
+    args = parser.parse_args()
+
+    from trainer.machine import cpu_description
+
+    base = {site: fit_site(LEVERS["baseline"], site, args.budget, None) for site in SITES}
+    rows = []
+    for name in args.levers:
+        lever = LEVERS[name]
+        fixed = lever.kind == "quality"
+        scores = base if name == "baseline" else {
+            site: fit_site(lever, site, args.budget, base[site]["steps"] if fixed else None) for site in SITES
+        }  # fmt: skip
+        cells = " | ".join(f"{s['steps']} | {s['delta1']:.3f} | {s['rel']:.3f}" for s in scores.values())
+        delta = " | ".join(f"{scores[site]['delta1'] - base[site]['delta1']:+.3f}" for site in SITES)
+        changes = ", ".join(f"`{c}`" for c in lever.changes)
+        rows.append(f"| {name} | {lever.kind} | {changes} | {cells} | {delta} | {verdict(lever, scores, base)} |")
+        print(rows[-1], flush=True)
+    table = (
+        f"Machine: {cpu_description()}. {args.budget:g}-minute fits from the bundled 0.8.1; held-out δ1 and REL; "
+        "a quality lever trains the baseline's steps, a speed lever the steps its own plan fits in the budget.\n\n"
+        "| lever | kind | changes | aims-lab steps | δ1 | REL | mosd-tabletop steps | δ1 | REL | Δ aims-lab δ1 | "
+        "Δ mosd-tabletop δ1 | verdict |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n"
+    )
+    command = f"python bench/fit_levers.py --levers {' '.join(args.levers)} --budget {args.budget:g}"
+    report(table, args.markdown, "Fit-quality levers", command)
+
+
+if __name__ == "__main__":
+    main()
