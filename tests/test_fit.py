@@ -127,6 +127,8 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
     assert labels[2].startswith("baseline: constant") and labels[3] == "baseline: per-pixel train median"
     assert all(m.images == 5 for m in card.metrics)
     assert card.generator == load_card(start).generator
+    loss = card.training.config["loss"]
+    assert (loss["gan"], loss["feature_matching"], loss["l1_depth"]) == (0, 0, 100)  # a fit's objective: the L1 alone
     # The exact commands to serve it, and the service does.
     assert f"RGB2CLOUD_REGISTRY={own} RGB2CLOUD_MODEL=my-room:0.1.0 make serve" in stdout
     assert "/depth?model=my-room:0.1.0" in stdout

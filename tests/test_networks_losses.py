@@ -153,23 +153,6 @@ def test_holes_carry_no_signal():
     assert feature_matching(outputs, d(torch.randn(1, 4, 32, 32)), weights).item() == 0.0
 
 
-def test_mixed_precision_on_a_cpu_is_bf16_only_where_it_is_native(monkeypatch, caplog):
-    import trainer.gan as gan
-
-    cpu = torch.device("cpu")
-    monkeypatch.setattr(gan, "native_bf16", lambda: True)
-    assert gan.Precision.for_device(cpu, True) == gan.Precision(True, torch.bfloat16)
-    assert not gan.Precision.for_device(cpu, False).enabled
-    monkeypatch.setattr(gan, "native_bf16", lambda: False)
-    gan._say_fp32.cache_clear()
-    with caplog.at_level("WARNING", logger="rgb2cloud.train"):
-        assert not gan.Precision.for_device(cpu, True).enabled
-        assert not gan.Precision.for_device(cpu, True).enabled
-    assert [r.getMessage() for r in caplog.records] == [
-        "mixed precision: this CPU has no AVX512-BF16 or AMX, so training runs in fp32"
-    ]  # one line, however often it is asked
-
-
 def test_without_adversarial_terms_the_discriminator_is_never_run(tmp_path):
     from conftest import tiny_config
 

@@ -123,9 +123,7 @@ class TrainConfig(Strict):
     num_workers: int = Field(2, ge=0)
     seed: int = 0
     device: Literal["auto", "cpu", "cuda"] = "auto"
-    amp: bool = Field(
-        True, description="mixed precision: bf16 on CUDA (fp16 where it lacks bf16) and on CPUs with AVX512-BF16 or AMX"
-    )
+    amp: bool = Field(True, description="mixed precision on CUDA (ignored on CPU)")
     log_every: int = Field(10, ge=1)
     val_every: int = Field(500, ge=1)
     checkpoint_every: int = Field(500, ge=1)

@@ -34,8 +34,3 @@ def cpu_flags() -> set[str]:
     except OSError:
         pass
     return set()
-
-
-def native_bf16() -> bool:
-    """Whether this CPU multiplies bf16 in hardware; elsewhere bf16 is emulated and slower than fp32."""
-    return bool(cpu_flags() & {"avx512_bf16", "amx_bf16"})
