@@ -140,8 +140,9 @@ def open_recording(root: Path, format: str | None, options: ReadOptions, scratch
 def _overridden(pair: RecordedPair, camera: CameraFile) -> RecordedPair:
     """``pair`` with every intrinsic and the depth scale that ``camera`` sets."""
     k = pair.camera
-    merged = CameraFile(k.fx, k.fy, k.cx, k.cy, pair.depth_scale).merged(camera)
-    if merged == CameraFile(k.fx, k.fy, k.cx, k.cy, pair.depth_scale):
+    own = CameraFile(k.fx, k.fy, k.cx, k.cy, pair.depth_scale)
+    merged = own.merged(camera)
+    if merged == own:
         return pair
     return replace(pair, camera=merged.intrinsics(k.width, k.height, pair.rgb), depth_scale=merged.depth_scale)
 
