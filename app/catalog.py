@@ -218,7 +218,8 @@ class ModelCatalog:
 
 
 def card_summary(card: ModelCard) -> dict[str, Any]:
-    """The parts of a card a person choosing a model needs: when, what from, how good, which camera."""
+    """The parts of a card a person choosing a model needs: when, what from, how good, which camera, which
+    graphs (an int8 one ONNX Runtime serves with ``precision=int8``)."""
     fit = card.training.fit
     return {
         "created": card.created.isoformat(),
@@ -227,4 +228,5 @@ def card_summary(card: ModelCard) -> dict[str, Any]:
         "data": [{"name": d.name, "licence": d.licence, "via": d.via} for d in card.training.data],
         "fit": None if fit is None else fit.model_dump(include={"data", "start_from", "start_model"}),
         "metrics": [{"split": m.split, "label": m.label, "delta1": m.delta1, "rel": m.rel} for m in card.metrics],
+        "precisions": ["fp32", "int8"] if card.int8 else ["fp32"],
     }

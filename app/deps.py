@@ -17,9 +17,10 @@ from app.camera import CameraQuery
 from app.catalog import ModelCatalog
 from app.loading import LoadedModel
 from app.observability import ServiceMetrics
-from app.pipeline import Limits
+from app.pipeline import RequestSettings
 from app.pool import InferencePool
 from app.settings import Settings
+from contract.runtime import Precision
 
 MODEL_REFERENCE = r"^[A-Za-z0-9][A-Za-z0-9._-]*(:[0-9A-Za-z.+-]+)?$"
 
@@ -76,9 +77,18 @@ def camera_query(
     return CameraQuery(fx, fy, cx, cy)
 
 
-def get_limits(settings: SettingsDep) -> Limits:
-    """The size limits a request's image is held to, from the settings."""
-    return Limits(settings.max_pixels, settings.inference_max_pixels)
+def get_request_settings(
+    settings: SettingsDep,
+    precision: Annotated[
+        Precision | None,
+        Query(
+            description="the generator graph to run: fp32, or int8 where the version ships one (default: "
+            "RGB2CLOUD_PRECISION); X-Precision names the one that ran"
+        ),
+    ] = None,
+) -> RequestSettings:
+    """The size limits a request's image is held to, from the settings, and the precision it wants."""
+    return RequestSettings(settings.max_pixels, settings.inference_max_pixels, precision or settings.precision)
 
 
 def get_pool(request: Request) -> InferencePool:
@@ -92,5 +102,5 @@ def get_metrics(request: Request) -> ServiceMetrics:
 ModelDep = Annotated[LoadedModel, Depends(get_model)]
 PoolDep = Annotated[InferencePool, Depends(get_pool)]
 CameraDep = Annotated[CameraQuery, Depends(camera_query)]
-LimitsDep = Annotated[Limits, Depends(get_limits)]
+RequestSettingsDep = Annotated[RequestSettings, Depends(get_request_settings)]
 MetricsDep = Annotated[ServiceMetrics, Depends(get_metrics)]

@@ -21,7 +21,7 @@ from contract.card import (
     verify_files,
 )
 from contract.codec import INPUT_ENCODING
-from contract.runtime import ExportedGenerator, OnnxGenerator
+from contract.runtime import ExportedGenerator, OnnxGenerator, Precision
 
 
 class ModelLoadError(Exception):
@@ -32,9 +32,11 @@ class ModelLoadError(Exception):
 class LoadedModel:
     card: ModelCard
     path: Path
-    generator: ExportedGenerator
+    #: A runner per precision the version ships for this backend: always fp32, and int8 with ONNX Runtime when
+    #: the card lists an int8 graph.
+    generators: dict[Precision, ExportedGenerator]
     warmup_seconds: float
-    #: The size of the weights file the runtime holds: what /metrics counts per loaded model.
+    #: The size of the weights files the runtimes hold: what /metrics counts per loaded model.
     weights_bytes: int
     #: One generator call at a time: it already uses every inference thread, while the
     #: other pool workers decode and encode around it.
@@ -45,10 +47,17 @@ class LoadedModel:
         """``NAME:VERSION``, as requests name it and /metrics labels it."""
         return f"{self.card.name}:{self.card.version}"
 
-    def predict_depth(self, rgb: np.ndarray) -> np.ndarray:
-        """Metres, HxW float32, for an HxWx3 uint8 image (padded to the grid and cropped back)."""
+    def serving(self, wanted: Precision) -> Precision:
+        """The precision a request that wants ``wanted`` gets: that one if this version ships it, else fp32."""
+        return wanted if wanted in self.generators else "fp32"
+
+    def predict_depth(self, rgb: np.ndarray, precision: Precision = "fp32") -> np.ndarray:
+        """Metres, HxW float32, for an HxWx3 uint8 image (padded to the grid and cropped back).
+
+        ``precision`` must be one this version ships (``serving`` picks it).
+        """
         with self.lock:
-            raw = self.generator.predict_raw(rgb)
+            raw = self.generators[precision].predict_raw(rgb)
         return self.card.depth_encoding.decode(raw)
 
 
@@ -97,10 +106,16 @@ def check_contract(card: ModelCard, folder: Path) -> None:
             f"{path}: a generator of {card.generator.input_nc} input and {card.generator.output_nc} output "
             "channels; this service feeds RGB and reads one depth channel"
         )
+    if card.int8 is not None and card.int8.file not in card.files:
+        raise ModelLoadError(f"{path}: int8 graph {card.int8.file} is not among the card's files and their sha256")
 
 
 def load_version(folder: Path, settings: Settings) -> LoadedModel:
-    """Verify (sha256, the card's input and output, config vs weights), build the runtime and warm it up."""
+    """Verify (sha256, the card's input and output, config vs weights), build the runtimes and warm them up.
+
+    The int8 graph is loaded beside the fp32 one when the card lists it and the backend is ONNX Runtime, so
+    a request can ask for either; every file is verified whichever the settings prefer.
+    """
     try:
         card = load_card(folder)
         verify_files(folder, card)
@@ -110,23 +125,31 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
     file_name = ONNX_FILE if settings.backend == "onnx" else TORCHSCRIPT_FILE
     if file_name not in card.files:
         raise ModelLoadError(f"{folder / file_name}: the card lists no such file for backend {settings.backend!r}")
-    path = folder / file_name
+    paths: dict[Precision, Path] = {"fp32": folder / file_name}
+    if settings.backend == "onnx" and card.int8 is not None:
+        paths["int8"] = folder / card.int8.file
+    generators = {precision: _runner(path, card, settings) for precision, path in paths.items()}
+    model = LoadedModel(card, folder, generators, 0.0, sum(path.stat().st_size for path in paths.values()))
+    start = time.perf_counter()
+    blank = np.zeros((card.camera.height, card.camera.width, 3), dtype=np.uint8)
+    for precision, path in paths.items():
+        warm = model.predict_depth(blank, precision)
+        if warm.shape != (card.camera.height, card.camera.width):
+            raise ModelLoadError(
+                f"{path}: warm-up returned {warm.shape} for a {card.camera.width}x{card.camera.height} input"
+            )
+    model.warmup_seconds = time.perf_counter() - start
+    return model
+
+
+def _runner(path: Path, card: ModelCard, settings: Settings) -> ExportedGenerator:
+    """One file's runtime, after checking that its convolutions are the card's generator's."""
     check_weights(card, path, settings.backend)
     try:
         if settings.backend == "onnx":
-            runner: ExportedGenerator = OnnxGenerator(path, card.input_multiple, settings.threads)
-        else:
-            from app.torchscript import TorchScriptGenerator
+            return OnnxGenerator(path, card.input_multiple, settings.threads)
+        from app.torchscript import TorchScriptGenerator
 
-            runner = TorchScriptGenerator(path, card.input_multiple, settings.threads)
+        return TorchScriptGenerator(path, card.input_multiple, settings.threads)
     except Exception as e:  # the runtime's own parse errors
         raise ModelLoadError(f"{path}: the {settings.backend} runtime cannot load it: {e}") from e
-    model = LoadedModel(card, folder, runner, 0.0, path.stat().st_size)
-    start = time.perf_counter()
-    warm = model.predict_depth(np.zeros((card.camera.height, card.camera.width, 3), dtype=np.uint8))
-    if warm.shape != (card.camera.height, card.camera.width):
-        raise ModelLoadError(
-            f"{path}: warm-up returned {warm.shape} for a {card.camera.width}x{card.camera.height} input"
-        )
-    model.warmup_seconds = time.perf_counter() - start
-    return model

@@ -13,6 +13,7 @@ from app.imaging import decode_image, encode_colormap_png, encode_depth_png
 from app.loading import LoadedModel
 from app.ply import encode_ply
 from contract.geometry import Intrinsics, point_cloud
+from contract.runtime import Precision
 
 
 @dataclass
@@ -45,7 +46,9 @@ class Stopwatch:
         self._last = now
 
 
-def infer(model: LoadedModel, rgb: np.ndarray, camera: Intrinsics, max_pixels: int) -> tuple[np.ndarray, float]:
+def infer(
+    model: LoadedModel, rgb: np.ndarray, camera: Intrinsics, max_pixels: int, precision: Precision = "fp32"
+) -> tuple[np.ndarray, float]:
     """Depth in metres at the photo's size, the photo resampled to the model's focal length first.
 
     The resampled photo is at most ``max_pixels`` (beyond it, it is shrunk further: the cost of a
@@ -57,8 +60,8 @@ def infer(model: LoadedModel, rgb: np.ndarray, camera: Intrinsics, max_pixels: i
     ratio = focal_ratio(w * model_camera.fx / camera.fx, h * model_camera.fy / camera.fy, max_pixels)
     size = generator_size(camera, model_camera, max_pixels)
     if size == (w, h):
-        return model.predict_depth(rgb), ratio
-    depth = model.predict_depth(np.asarray(Image.fromarray(rgb).resize(size, Image.BILINEAR)))
+        return model.predict_depth(rgb, precision), ratio
+    depth = model.predict_depth(np.asarray(Image.fromarray(rgb).resize(size, Image.BILINEAR)), precision)
     return np.asarray(Image.fromarray(depth, mode="F").resize((w, h), Image.BILINEAR), dtype=np.float32), ratio
 
 
@@ -70,39 +73,51 @@ class Inferred:
     depth: np.ndarray
     camera: PhotoCamera
     focal_ratio: float
+    #: The graph that ran, and the one wanted when this version does not ship it.
+    precision: Precision
+    wanted: Precision
 
     def headers(self, model: LoadedModel) -> dict[str, str]:
-        """Which model and camera made the depth; ``X-Focal-Ratio`` below 1 says the photo was shrunk further."""
-        return {
+        """Which model, graph and camera made the depth; ``X-Focal-Ratio`` below 1 says the photo was shrunk
+        further, and ``X-Precision-Fallback`` that the precision asked for is not in this version."""
+        headers = {
             "X-Model-Name": model.card.name,
             "X-Model-Version": model.card.version,
+            "X-Precision": self.precision,
             "X-Intrinsics": self.camera.header(),
             "X-Intrinsics-Source": self.camera.source,
             "X-Focal-Ratio": f"{self.focal_ratio:.4f}",
         }
+        if self.precision != self.wanted:
+            headers["X-Precision-Fallback"] = f"{self.wanted} asked for; this version has no {self.wanted} graph"
+        return headers
 
 
-def _photo_and_depth(model: LoadedModel, data: bytes, limits: Limits, query: CameraQuery, watch: Stopwatch) -> Inferred:
-    photo = decode_image(data, limits.max_pixels)
+def _photo_and_depth(
+    model: LoadedModel, data: bytes, settings: RequestSettings, query: CameraQuery, watch: Stopwatch
+) -> Inferred:
+    photo = decode_image(data, settings.max_pixels)
     watch.lap("decode")
     height, width = photo.rgb.shape[:2]
     camera = photo_camera(model.card.camera, width, height, query, photo.exif_focal)
-    depth, ratio = infer(model, photo.rgb, camera.intrinsics, limits.inference_max_pixels)
+    precision = model.serving(settings.precision)
+    depth, ratio = infer(model, photo.rgb, camera.intrinsics, settings.inference_max_pixels, precision)
     watch.lap("inference")
-    return Inferred(photo.rgb, depth, camera, ratio)
+    return Inferred(photo.rgb, depth, camera, ratio, precision, settings.precision)
 
 
 @dataclass(frozen=True)
-class Limits:
-    """The settings that bound one request's work."""
+class RequestSettings:
+    """The settings that bound one request's work, and the generator precision it wants."""
 
     max_pixels: int
     inference_max_pixels: int
+    precision: Precision = "fp32"
 
 
-def depth_png(model: LoadedModel, data: bytes, limits: Limits, query: CameraQuery, colormap: bool) -> Result:
+def depth_png(model: LoadedModel, data: bytes, settings: RequestSettings, query: CameraQuery, colormap: bool) -> Result:
     watch = Stopwatch()
-    inferred = _photo_and_depth(model, data, limits, query, watch)
+    inferred = _photo_and_depth(model, data, settings, query, watch)
     depth, headers = inferred.depth, inferred.headers(model)
     if colormap:
         lo, hi = (float(v) for v in np.percentile(depth, [2, 98]))
@@ -123,11 +138,11 @@ class CloudOptions:
 
 
 def point_cloud_ply(
-    model: LoadedModel, data: bytes, limits: Limits, query: CameraQuery, options: CloudOptions
+    model: LoadedModel, data: bytes, settings: RequestSettings, query: CameraQuery, options: CloudOptions
 ) -> Result:
     """Formula (5) with the photo's own camera: the one its depth was inferred with."""
     watch = Stopwatch()
-    inferred = _photo_and_depth(model, data, limits, query, watch)
+    inferred = _photo_and_depth(model, data, settings, query, watch)
     k = inferred.camera.intrinsics
     points = point_cloud(
         inferred.depth, inferred.rgb, k, stride=options.stride, min_depth=options.min_depth, max_depth=options.max_depth

@@ -10,7 +10,7 @@ from fastapi.responses import FileResponse, JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from starlette.concurrency import run_in_threadpool
 
-from app.deps import CameraDep, CatalogDep, LimitsDep, MetricsDep, ModelDep, PoolDep
+from app.deps import CameraDep, CatalogDep, MetricsDep, ModelDep, PoolDep, RequestSettingsDep
 from app.loading import LoadedModel
 from app.observability import ServiceMetrics
 from app.pipeline import CloudOptions, Result, depth_png, point_cloud_ply
@@ -47,7 +47,7 @@ async def _run(pool: InferencePool, metrics: ServiceMetrics, fn, model: LoadedMo
 async def depth(
     model: ModelDep,
     camera: CameraDep,
-    limits: LimitsDep,
+    settings: RequestSettingsDep,
     pool: PoolDep,
     metrics: MetricsDep,
     image: Annotated[UploadFile, IMAGE_FIELD],
@@ -60,7 +60,7 @@ async def depth(
     The photo is resampled to the model's focal length first (``X-Intrinsics-Source`` says whose).
     """
     data = await image.read()
-    result = await _run(pool, metrics, depth_png, model, data, limits, camera, format == "colormap")
+    result = await _run(pool, metrics, depth_png, model, data, settings, camera, format == "colormap")
     return Response(result.body, media_type="image/png", headers=result.headers)
 
 
@@ -68,7 +68,7 @@ async def depth(
 async def pointcloud(
     model: ModelDep,
     camera: CameraDep,
-    limits: LimitsDep,
+    settings: RequestSettingsDep,
     pool: PoolDep,
     metrics: MetricsDep,
     image: Annotated[UploadFile, IMAGE_FIELD],
@@ -84,7 +84,7 @@ async def pointcloud(
         return JSONResponse({"detail": f"min_depth ({min_depth}) is greater than max_depth ({max_depth})"}, 422)
     options = CloudOptions(stride, min_depth, max_depth)
     data = await image.read()
-    result = await _run(pool, metrics, point_cloud_ply, model, data, limits, camera, options)
+    result = await _run(pool, metrics, point_cloud_ply, model, data, settings, camera, options)
     return Response(result.body, media_type="application/octet-stream", headers=result.headers)
 
 

@@ -34,6 +34,11 @@ class Settings(BaseSettings):
         4, ge=2, description="models kept loaded at once: the default and at least one a request names"
     )
     backend: Literal["onnx", "torchscript"] = "onnx"
+    precision: Literal["fp32", "int8"] = Field(
+        "fp32",
+        description="the generator graph requests get without precision=: fp32, or int8 where a version ships one "
+        "(ONNX Runtime only; a version without one serves fp32 and says so in X-Precision-Fallback)",
+    )
     threads: int = Field(
         default_factory=lambda: os.cpu_count() or 1, ge=1, description="threads each generator call uses"
     )

@@ -1,12 +1,14 @@
 """How good a fit gets in how many minutes: each development site, each budget, each starting point.
 
-    python bench/fit_sites.py [--budgets 5 10 20 30] [--starts rooms 0.8.0 scratch] [--sites aims-lab mosd-tabletop]
+    python bench/fit_sites.py [--budgets 5 10 20 30] [--starts default rooms 0.8.0 scratch]
+                              [--sites aims-lab mosd-tabletop]
                               [--markdown docs/fit-benchmark.md] [--curve docs/fit-benchmark.png]
 
 Each cell is one ``rgb2cloud fit`` run in its own process, on this machine, with the
 site's held-out frames scored once at its end (δ1, REL, point-cloud RMSE), beside the
 starting model zero-shot and the best image-free baseline from the same run's card.
-No site is one its starting model saw: the bundled 0.8.0 saw only 7-Scenes RedKitchen, and
+The ``default`` start is what ``fit`` starts from without ``--from`` (the bundled base), with fit's
+default recipe. No site is one its starting model saw: the bundled versions saw only 7-Scenes RedKitchen, and
 the ``rooms`` start is, for each site, ``bench/rooms-base.yaml`` trained without
 that site (leave one site out; trained and published once, then reused for every budget).
 Runs and their published versions go to ``runs/bench-fit/``.
@@ -22,7 +24,7 @@ from pathlib import Path
 
 from harness.fitting import DATA, REPO, SITES
 
-STARTS = ("rooms", "0.8.0", "scratch")
+STARTS = ("default", "rooms", "0.8.0", "scratch")
 BUNDLED = REPO / "weights" / "rgb2cloud-7scenes" / "0.8.0"
 ROOMS_CONFIG = REPO / "bench" / "rooms-base.yaml"
 SEVEN_SCENES = DATA / "7scenes-redkitchen"
@@ -58,8 +60,11 @@ def rooms_without(site: str) -> Path:
     return target
 
 
-def start_for(site: str, start: str) -> str:
-    return str(rooms_without(site)) if start == "rooms" else str(BUNDLED) if start == "0.8.0" else "scratch"
+def start_options(site: str, start: str) -> list[str]:
+    """``fit``'s ``--from`` for a start: none for fit's default."""
+    if start == "default":
+        return []
+    return ["--from", str(rooms_without(site)) if start == "rooms" else str(BUNDLED) if start == "0.8.0" else start]
 
 
 def fit_once(site: str, start: str, budget: float) -> tuple[dict, float]:
@@ -68,7 +73,7 @@ def fit_once(site: str, start: str, budget: float) -> tuple[dict, float]:
 
     name = f"{site}-{start.replace('.', '-')}-{budget:g}min"
     registry = OUT / "registry"
-    args = [*SITES[site], "--name", name, "--budget", f"{budget:g}", "--from", start_for(site, start)]
+    args = [*SITES[site], "--name", name, "--budget", f"{budget:g}", *start_options(site, start)]
     args += ["--registry", str(registry), "--out", str(OUT / name)]
     began = time.monotonic()
     cli("fit", *args)

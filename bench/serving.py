@@ -20,6 +20,7 @@ import statistics
 import tempfile
 import time
 import zlib
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import partial
@@ -35,12 +36,12 @@ from app.imaging import PNG_COMPRESS_LEVEL, decode_image, depth_png_rows, encode
 from app.loading import LoadedModel
 from app.ply import encode_ply
 from app.settings import Settings
-from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, ModelCard, list_versions
+from contract.card import INT8_ONNX_FILE, ONNX_FILE, TORCHSCRIPT_FILE, ModelCard, list_versions
 from contract.codec import rgb_to_input
 from contract.geometry import Intrinsics, pad_to_multiple, point_cloud
 from contract.runtime import OnnxGenerator
 from harness.service import resident_mb, running_service, server_timing
-from trainer.machine import cpu_description
+from trainer.machine import SPEED_FLAGS, cpu_description, cpu_flags
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -60,7 +61,54 @@ def median_ms(fn, repeats: int) -> float:
 def machine() -> str:
     import onnxruntime
 
-    return f"{cpu_description()}, Python {platform.python_version()}, ONNX Runtime {onnxruntime.__version__}"
+    flags = ", ".join(sorted(SPEED_FLAGS & cpu_flags())) or "none"
+    return (
+        f"{cpu_description()} (int8 and bf16 flags: {flags}), Python {platform.python_version()}, "
+        f"ONNX Runtime {onnxruntime.__version__}"
+    )
+
+
+def interleaved_ms(calls: dict[str, Callable[[], object]], repeats: int) -> dict[str, float]:
+    """Median ms of each call, the calls taking turns, so that load on a shared machine hits them alike."""
+    times: dict[str, list[float]] = {label: [] for label in calls}
+    for call in calls.values():
+        call()  # warm
+    for _ in range(repeats):
+        for label, call in calls.items():
+            start = time.perf_counter()
+            call()
+            times[label].append(time.perf_counter() - start)
+    return {label: statistics.median(t) * 1000 for label, t in times.items()}
+
+
+def int8_times(args: argparse.Namespace, photo: Photo) -> dict[str, float]:
+    """fp32 against int8 in one run: the generator call, and HTTP /depth through one service.
+
+    The default version is published again with ``export --precision int8`` into a scratch registry
+    (as ``NAME-int8``), so the int8 graph is exactly what that command makes. Empty without the
+    trainer (the serving install), which cannot export.
+    """
+    try:
+        from trainer.export import export_and_publish
+    except ImportError:
+        return {}
+    card, r = photo.model.card, args.repeats
+    with tempfile.TemporaryDirectory() as tmp:
+        name = f"{card.name}-int8"
+        folder = export_and_publish(
+            photo.model.path, Path(tmp), name, card.version, card.metrics, args.image, precision="int8"
+        )
+        files = {"fp32": ONNX_FILE, "int8": INT8_ONNX_FILE}
+        graphs = {p: OnnxGenerator(folder / f, 1, args.threads).session for p, f in files.items()}
+        calls = {f"generator {p}": partial(s.run, None, {s.get_inputs()[0].name: photo.x}) for p, s in graphs.items()}
+        times = interleaved_ms(calls, r)
+        upload = {"image": ("photo.jpg", photo.data)}
+        service = running_service(registry=tmp, threads=str(args.threads), model=f"{name}:{card.version}")
+        with service as running, httpx.Client(timeout=60) as client:
+            post = partial(client.post, f"{running.url}/depth", files=upload)
+            calls = {f"HTTP /depth?precision={p}": partial(post, params={"precision": p}) for p in graphs}
+            times |= interleaved_ms(calls, r)
+    return times
 
 
 def depth_png_encoders(depth: np.ndarray, repeats: int) -> dict[str, tuple[float, int]]:
@@ -134,7 +182,7 @@ class Photo:
         return cls(data, rgb, x, model.predict_depth(rgb), camera, model)
 
     def generator_ms(self, repeats: int) -> float:
-        session, name = self.model.generator.session, self.model.generator.input_name
+        session, name = self.model.generators["fp32"].session, self.model.generators["fp32"].input_name
         return median_ms(lambda: session.run(None, {name: self.x}), repeats)
 
 
@@ -281,6 +329,19 @@ def backend_table(backends: dict[str, float], card: ModelCard) -> str:
     return out
 
 
+def int8_table(times: dict[str, float], card: ModelCard) -> str:
+    if not times:
+        return "\nint8: not measured (the serving install has no trainer to export an int8 graph).\n"
+    out = (
+        f"\n{card.name} {card.version} published again with `export --precision int8`, fp32 and int8 taking turns "
+        "in one run:\n\n| int8 against fp32 | median ms | speed-up |\n|---|---|---|\n"
+    )
+    for label, ms in times.items():
+        fp32 = times[label.replace("int8", "fp32")]
+        out += f"| {label} | {ms:.1f} | {fp32 / ms:.2f}x |\n"
+    return out
+
+
 def ply_table(ours: float, open3d: float | None) -> str:
     out = "\n| back-projection + binary PLY to disk | median ms |\n|---|---|\n"
     out += f"| rgb2cloud (`point_cloud` + `encode_ply`) | {ours:.1f} |\n"
@@ -324,6 +385,7 @@ def main() -> None:
     http = http_figures(args, photo)
     backends = backend_times(model, args.registry, photo.x, args.threads, r)
     ours, open3d = ply_times(photo, r)
+    int8 = int8_times(args, photo)
 
     h, w = photo.rgb.shape[:2]
     card = model.card
@@ -334,6 +396,7 @@ def main() -> None:
         + share_tables(http.shares)
         + png_table(png_encoders, w, h)
         + backend_table(backends, card)
+        + int8_table(int8, card)
         + ply_table(ours, open3d)
         + throughput_table(http)
     )

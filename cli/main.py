@@ -32,6 +32,22 @@ ColourCameraOption = Annotated[
     ),
 ]
 
+PrecisionOption = Annotated[
+    str,
+    typer.Option(
+        help="fp32: the fp32 graphs; int8: also an int8 ONNX graph beside them, calibrated on the model's "
+        "training frames (the service serves either: RGB2CLOUD_PRECISION, or precision= per request)"
+    ),
+]
+
+
+def checked_precision(precision: str) -> str:
+    """``--precision``'s value, or a one-line error."""
+    if precision not in ("fp32", "int8"):
+        raise typer.BadParameter(f"--precision {precision!r}: expected fp32 or int8")
+    return precision
+
+
 ModelArgument = Annotated[Path, typer.Argument(help="a published version folder, or a checkpoint (.pt)", exists=True)]
 Format = Annotated[str, typer.Option(help="7scenes | tum | nyu | csv | folders")]
 Root = Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)", exists=True)]
@@ -74,6 +90,7 @@ def evaluate(
     samples: Annotated[int, typer.Option(help="rows in samples.png")] = 4,
     inference: Inference = [],  # noqa: B006
     colour_camera: ColourCameraOption = None,
+    precision: Annotated[str, typer.Option(help="fp32, or int8: a published version's int8 graph")] = "fp32",
 ) -> None:
     """Score a model with the paper's metrics and print the paper's table."""
     from contract.spec import parse_inference_options
@@ -82,9 +99,9 @@ def evaluate(
 
     source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file)
     colour = parse_colour_camera(colour_camera) if colour_camera else None
-    table = evaluate_source(
-        model, source, out, parse_inference_options(inference), (min_depth, max_depth), samples, colour
-    )
+    changes = parse_inference_options(inference)
+    depth_range = (min_depth, max_depth)
+    table = evaluate_source(model, source, out, changes, depth_range, samples, colour, checked_precision(precision))
     typer.echo(table)
     typer.echo(f"wrote {out}/metrics.json, metrics.md, pc_rmse_curve.png, samples.png")
 
@@ -105,8 +122,9 @@ def export(
     parity_image: Annotated[Path, typer.Option(help="a real RGB image for the parity check", exists=True)],
     registry: Annotated[Path | None, typer.Option(help=REGISTRY_HELP)] = None,
     inference: Inference = [],  # noqa: B006
+    precision: PrecisionOption = "fp32",
 ) -> None:
-    """Export ONNX + TorchScript, check parity with eager PyTorch, publish a version."""
+    """Export ONNX + TorchScript (and int8 ONNX), check parity with eager PyTorch, publish a version."""
     from contract.card import load_card
     from contract.registries import user_registry
     from contract.spec import parse_inference_options
@@ -114,12 +132,27 @@ def export(
 
     changes = parse_inference_options(inference)
     scores = [metrics_from_report(path) for path in metrics]
-    target = export_and_publish(checkpoint, registry or user_registry(), name, version, scores, parity_image, changes)
+    target = export_and_publish(
+        checkpoint,
+        registry or user_registry(),
+        name,
+        version,
+        scores,
+        parity_image,
+        changes,
+        precision=checked_precision(precision),
+    )
     card = load_card(target)
     for file_name, digest in card.files.items():
         typer.echo(f"{file_name}  sha256 {digest}")
     for check, diff in card.parity.items():
         typer.echo(f"parity {check}: max abs diff {diff:.2e}")
+    if card.int8:
+        parity = card.int8.parity
+        typer.echo(
+            f"parity int8: depth within 1.25x of fp32 on {parity['agreement']:.1%} of pixels, "
+            f"median relative difference {parity['median_rel']:.2%}"
+        )
     typer.echo(f"published {target}")
 
 
@@ -183,6 +216,7 @@ def fit(
     resume: Annotated[bool, typer.Option(help="continue an interrupted fit from its last checkpoint")] = False,
     set_: RecipeChanges = [],  # noqa: B006
     steps: Steps = None,
+    precision: PrecisionOption = "fp32",
 ) -> None:
     """Fit a model of your space from a short RGB-D recording, score it honestly, and publish it."""
     from app.client import service_url
@@ -213,6 +247,7 @@ def fit(
         resume=resume,
         overrides=set_,
         steps=steps,
+        precision=checked_precision(precision),
     )
     try:
         run(options, typer.echo)

@@ -37,9 +37,10 @@ from contract.spec import GeneratorSpec, InferenceSettings
 CARD_FILE = "card.json"
 ONNX_FILE = "generator.onnx"
 TORCHSCRIPT_FILE = "generator.torchscript.pt"
+INT8_ONNX_FILE = "generator.int8.onnx"
 SEMVER = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)(?:-([0-9A-Za-z.-]+))?$")
 NAME = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 #: The paper's six metrics, in its Table 2's order.
 PAPER_METRICS = ("rel", "rmse", "log10", "delta1", "delta2", "delta3")
 #: What every evaluation reports and a card records: the paper's metrics and the mean point-cloud RMSE.
@@ -131,6 +132,18 @@ class FitRecord(BaseModel):
     )
 
 
+class Int8Graph(BaseModel):
+    """The int8 ONNX graph published beside the fp32 one: how it was calibrated, and how close it stays."""
+
+    file: str = INT8_ONNX_FILE
+    method: str = Field(description="ONNX Runtime static QDQ quantisation: per-channel int8 weights, uint8 activations")
+    calibration: str = Field(description="the activation-range calibration: minmax, entropy or percentile")
+    frames: int = Field(description="how many of the model's training frames calibrated it")
+    frames_from: list[str] = Field(description="the training data they were spread over")
+    fp32_nodes: list[str] = Field(description="nodes left in fp32 (the precision-sensitive ends)")
+    parity: dict[str, float] = Field(description="int8 against fp32 depth on the parity image; see trainer.quantize")
+
+
 class Training(BaseModel):
     data: list[DataRef] = Field(min_length=1)
     steps: int
@@ -163,6 +176,9 @@ class ModelCard(BaseModel):
     metrics: list[Metrics] = Field(min_length=1)
     trainer_commit: str
     parity: dict[str, float] = Field(default_factory=dict, description="export vs eager max abs diff")
+    int8: Int8Graph | None = Field(
+        None, description="an int8 graph beside the fp32 one (``export --precision int8``); none: fp32 only"
+    )
     derived_from: str | None = Field(
         None,
         description="the published version whose weights these are, exported again with other inference "
@@ -220,6 +236,8 @@ def migrate_card(card: dict[str, Any]) -> dict[str, Any]:
     Schema 2 had an ``output`` text that nothing read (the generator spec's ``output_nc``
     and ``depth_encoding`` say it), dropped in 3, and called a fit's starting version
     ``started_from``, now ``start_from`` as everywhere else.
+
+    Schema 4 added the optional ``int8`` graph; a schema-3 card reads as one without it.
     """
     if not isinstance(card, dict):
         raise ValueError("expected a JSON object")

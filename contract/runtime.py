@@ -12,12 +12,15 @@ Torch-free: the service's default install has no torch.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Protocol
+from typing import Literal, Protocol
 
 import numpy as np
 
 from contract.codec import rgb_to_input
 from contract.geometry import pad_to_multiple
+
+#: The graphs a version can ship: fp32 always, int8 beside it when exported with ``--precision int8``.
+Precision = Literal["fp32", "int8"]
 
 
 class ExportedGenerator(Protocol):

@@ -16,8 +16,9 @@ import numpy as np
 from tqdm import tqdm
 
 from contract.card import METRIC_KEYS, ONNX_FILE, PAPER_METRICS, load_card, verify_files
+from contract.errors import UserError
 from contract.geometry import ColourCamera
-from contract.runtime import OnnxGenerator
+from contract.runtime import OnnxGenerator, Precision
 from trainer.checkpoint import load_graph
 from trainer.config import DataSource
 from trainer.data.formats import describe, open_source
@@ -104,21 +105,27 @@ def evaluate_frames(
 
 
 def load_predictor(
-    path: Path, inference: dict[str, Any] | None = None
+    path: Path, inference: dict[str, Any] | None = None, precision: Precision = "fp32"
 ) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
     """A depth predictor and a label from a checkpoint (.pt) or a published version folder.
 
     A version folder is checked against its card (sha256) and, as exported, run the
     way the service runs it: ONNX Runtime, then the card's depth encoding. With
     ``inference`` (other inference settings for the same weights) a version runs
-    eagerly from its TorchScript weights instead, as a checkpoint does.
+    eagerly from its TorchScript weights instead, as a checkpoint does. ``precision="int8"`` runs a version's
+    int8 ONNX graph.
     """
     path = Path(path)
+    if precision == "int8" and not (path.is_dir() and not inference):
+        raise UserError(f"{path}: --precision int8 runs a published version's int8 graph, as published")
     if path.is_dir() and not inference:
         card = load_card(path)
         verify_files(path, card)
-        runner = OnnxGenerator(path / ONNX_FILE, card.input_multiple)
-        return (lambda rgb: card.depth_encoding.decode(runner.predict_raw(rgb))), f"{card.name} {card.version} (ONNX)"
+        if precision == "int8" and card.int8 is None:
+            raise UserError(f"{path}: this version has no int8 graph (publish one with export --precision int8)")
+        file_name, how = (card.int8.file, "ONNX int8") if precision == "int8" and card.int8 else (ONNX_FILE, "ONNX")
+        runner = OnnxGenerator(path / file_name, card.input_multiple)
+        return (lambda rgb: card.depth_encoding.decode(runner.predict_raw(rgb))), f"{card.name} {card.version} ({how})"
     graph, weights = load_graph(path, inference)
     runner = EagerGenerator(graph, weights.config.generator.input_multiple)
     how = weights.inference.describe()
@@ -199,12 +206,13 @@ def score_source(
     depth_range: tuple[float, float],
     *,
     inference: dict[str, Any] | None = None,
+    precision: Precision = "fp32",
     samples: int = 0,
     colour_camera: ColourCamera | None = None,
     diagnostics: Sequence[Diagnostic] = (),
 ) -> tuple[dict, list[dict], list[tuple[np.ndarray, np.ndarray, np.ndarray]], str]:
     """``evaluate_frames`` of a checkpoint or version on a data source, with the model's label."""
-    predict, label = load_predictor(model, inference)
+    predict, label = load_predictor(model, inference, precision)
     result, per_image, grid = evaluate_frames(
         predict,
         open_source(source),
@@ -226,10 +234,17 @@ def evaluate_source(
     depth_range: tuple[float, float],
     samples: int,
     colour_camera: ColourCamera | None = None,
+    precision: Precision = "fp32",
 ) -> str:
     """``rgb2cloud evaluate``: score ``model`` on ``source``, write the reports to ``out``, return the table."""
     result, per_image, grid, label = score_source(
-        model, source, depth_range, inference=inference, samples=samples, colour_camera=colour_camera
+        model,
+        source,
+        depth_range,
+        inference=inference,
+        precision=precision,
+        samples=samples,
+        colour_camera=colour_camera,
     )
     if colour_camera:
         label += ", read at the colour camera"

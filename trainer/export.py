@@ -14,6 +14,7 @@ import logging
 import subprocess
 import tempfile
 import warnings
+from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -23,26 +24,40 @@ import torch
 from PIL import Image
 
 from contract.card import (
+    INT8_ONNX_FILE,
     ONNX_FILE,
     TORCHSCRIPT_FILE,
     DataRef,
     FitRecord,
+    Int8Graph,
     Metrics,
     ModelCard,
     Training,
     publish,
 )
-from contract.codec import INPUT_ENCODING
+from contract.codec import INPUT_ENCODING, DepthEncoding
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from contract.runtime import OnnxGenerator
+from contract.runtime import OnnxGenerator, Precision
 from trainer.checkpoint import load_graph
 from trainer.config import DataSource
 from trainer.data.formats import describe, open_source
 from trainer.data.frames import FrameReader
 from trainer.inference import EagerGenerator, InferenceGraph
+from trainer.quantize import (
+    CALIBRATION,
+    CALIBRATION_FRAMES,
+    FP32_NODES,
+    QUANTISED_OPS,
+    calibration_frames,
+    int8_parity,
+    quantize_generator,
+    spread_photos,
+)
 
 PARITY_TOLERANCE = 1e-4
+#: int8 depth must agree with fp32 within 1.25x on at least this share of the parity image's pixels.
+INT8_AGREEMENT = 0.95
 OPSET = 18
 
 
@@ -111,6 +126,40 @@ def check_parity(graph: InferenceGraph, folder: Path, image: np.ndarray) -> dict
     return report
 
 
+def publish_int8(
+    folder: Path,
+    sources: Sequence[DataSource],
+    readers: Sequence[FrameReader],
+    camera: Intrinsics,
+    image: np.ndarray,
+    multiple: int,
+    encoding: DepthEncoding,
+) -> Int8Graph:
+    """Quantise ``folder``'s fp32 graph into ``INT8_ONNX_FILE`` beside it, check it, and describe it for the card.
+
+    Calibration: ``CALIBRATION_FRAMES`` of the training frames, spread over them, at the card camera's
+    size; the parity image is shown at that size too, as the service shows photos.
+    """
+    photos = calibration_frames(spread_photos(readers, CALIBRATION_FRAMES), camera.width, camera.height)
+    int8 = folder / INT8_ONNX_FILE
+    done = quantize_generator(folder / ONNX_FILE, int8, photos, multiple, CALIBRATION, FP32_NODES, QUANTISED_OPS)
+    (shown,) = calibration_frames([image], camera.width, camera.height)
+    parity = int8_parity(folder / ONNX_FILE, folder / INT8_ONNX_FILE, shown, multiple, encoding)
+    if parity["agreement"] < INT8_AGREEMENT:
+        raise ParityError(
+            f"{INT8_ONNX_FILE}: int8 depth agrees with fp32 within 1.25x on {parity['agreement']:.1%} of the parity "
+            f"image's pixels (< {INT8_AGREEMENT:.0%})"
+        )
+    return Int8Graph(
+        method=f"ONNX Runtime static QDQ of the {QUANTISED_OPS}: per-channel int8 weights, uint8 activations",
+        calibration=done.method,
+        frames=done.frames,
+        frames_from=[describe(source) for source in sources],
+        fp32_nodes=done.fp32_nodes,
+        parity=parity,
+    )
+
+
 def trainer_commit() -> str:
     """The git commit of this code, with '-dirty' when it has uncommitted changes."""
     here = Path(__file__).resolve().parent
@@ -170,6 +219,7 @@ def export_and_publish(
     *,
     data: list[DataRef] | None = None,
     fit: FitRecord | None = None,
+    precision: Precision = "fp32",
 ) -> Path:
     """Export, check parity, and publish ``<registry>/<name>/<version>/`` with its card.
 
@@ -179,7 +229,8 @@ def export_and_publish(
     into the exported graph and recorded in the card. A card from a published
     version also names it in ``derived_from``. ``data`` replaces the card's data
     entries made from the training sources, and ``fit`` records how ``rgb2cloud fit``
-    made the model.
+    made the model. ``precision="int8"`` also publishes an int8 graph beside the fp32 one
+    (``trainer.quantize``), calibrated on the training frames.
     """
     target = Path(registry) / name / version
     if target.exists():
@@ -197,6 +248,11 @@ def export_and_publish(
         export_onnx(graph, folder / ONNX_FILE)
         export_torchscript(graph, folder / TORCHSCRIPT_FILE)
         parity = check_parity(graph, folder, image)
+        files = {ONNX_FILE: folder / ONNX_FILE, TORCHSCRIPT_FILE: folder / TORCHSCRIPT_FILE}
+        int8 = None
+        if precision == "int8":
+            int8 = publish_int8(folder, config.data.train, readers, camera, image, graph.input_multiple, config.depth)
+            files[INT8_ONNX_FILE] = folder / INT8_ONNX_FILE
         card = ModelCard(
             name=name,
             version=version,
@@ -219,6 +275,7 @@ def export_and_publish(
             metrics=metrics,
             trainer_commit=trainer_commit(),
             parity=parity,
+            int8=int8,
             derived_from=weights.published,
         )
-        return publish(registry, card, {ONNX_FILE: folder / ONNX_FILE, TORCHSCRIPT_FILE: folder / TORCHSCRIPT_FILE})
+        return publish(registry, card, files)

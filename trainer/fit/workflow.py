@@ -22,6 +22,7 @@ from contract.card import DataRef, FitRecord, ModelCard, list_versions, load_car
 from contract.errors import UserError
 from contract.geometry import ColourCamera
 from contract.registries import BUNDLED_VARIABLE, bundled_registry, registry_models, user_registry
+from contract.runtime import Precision
 from contract.spec import GeneratorSpec
 from trainer.config import DataSource, RunConfig, apply_overrides, migrate_config
 from trainer.data.formats import ReadOptions, Recording, open_recording
@@ -57,6 +58,8 @@ class FitOptions:
     overrides: list[str] = field(default_factory=list)
     #: Train exactly this many steps instead of what the budget allows.
     steps: int | None = None
+    #: "int8": publish an int8 graph beside the fp32 ones (``export --precision``).
+    precision: Precision = "fp32"
     holdout: str | None = None
     gap_frames: int | None = None
     registration: str = "auto"
@@ -315,7 +318,15 @@ def _train_score_publish(options: FitOptions, state: FitState, progress: Progres
     data += lineage(start) if start else []
     parity_image = ManifestReader(holdout.root).pairs[0].rgb
     target = export_and_publish(
-        checkpoint, options.registry, options.name, version, metrics, parity_image, data=data, fit=record
+        checkpoint,
+        options.registry,
+        options.name,
+        version,
+        metrics,
+        parity_image,
+        data=data,
+        fit=record,
+        precision=options.precision,
     )
     progress.say(f"published {target}")
     progress.say(f"run folder (config, checkpoints, split manifests): {options.run_dir}")

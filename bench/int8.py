@@ -1,0 +1,136 @@
+"""int8 choices, each measured: calibration method and which nodes stay fp32, on the kitchen and a fitted site.
+
+    python bench/int8.py --site-model runs/bench-levers/registry/no-discriminator-aims-lab/0.1.0 \
+        [--methods minmax entropy percentile] [--frames 20] [--markdown FILE]
+
+For each choice the published versions' ONNX graphs are quantised (``trainer.quantize``),
+calibrated on ``--frames`` of each model's own training frames, then scored as the
+service runs them: the bundled kitchen model on RedKitchen test frames 850-999 read at
+the colour camera, and the fitted site model on its held-out frames. The generator's
+time at 640x480 is a median over ``--repeats`` runs, fp32 and int8 interleaved in one
+process, so read the ratio.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from contract.card import ONNX_FILE, load_card
+from contract.geometry import ColourCamera
+from contract.runtime import OnnxGenerator
+from harness.fitting import REPO, report
+from trainer.config import DataSource
+from trainer.data.formats import open_source
+from trainer.evaluate import evaluate_frames
+from trainer.quantize import KEEP, OPS, calibration_frames, quantize_generator, spread_photos
+
+KITCHEN = REPO / "weights" / "rgb2cloud-7scenes" / "0.8.1"
+KITCHEN_TEST = DataSource(
+    format="7scenes", root=REPO.parent / "shared" / "data" / "7scenes-redkitchen", frames="850-999"
+)
+KITCHEN_COLOUR = ColourCamera(fx=530, fy=530, cx=314.5, cy=239, baseline_m=0.009)
+
+
+def score(version: Path, onnx_file: Path, test: DataSource, colour: ColourCamera | None) -> dict:
+    """δ1 and REL of one graph of a version, run as the service runs it (at the card's camera size)."""
+    card = load_card(version)
+    runner = OnnxGenerator(onnx_file, card.input_multiple)
+    size = (card.camera.width, card.camera.height)
+
+    def predict(rgb: np.ndarray) -> np.ndarray:
+        from PIL import Image
+
+        shown = rgb if rgb.shape[1::-1] == size else np.asarray(Image.fromarray(rgb).resize(size))
+        depth = card.depth_encoding.decode(runner.predict_raw(shown))
+        if depth.shape != rgb.shape[:2]:
+            depth = np.asarray(Image.fromarray(depth).resize(rgb.shape[1::-1]))
+        return depth
+
+    result, _, _ = evaluate_frames(predict, open_source(test), min_m=0.1, max_m=10.0, colour_camera=colour)
+    return {"delta1": result["delta1"], "rel": result["rel"]}
+
+
+def generator_ms(files: list[Path], multiple: int, repeats: int) -> list[float]:
+    """Median ms of each graph on one 640x480 photo, the graphs interleaved so load hits them alike."""
+    runners = [OnnxGenerator(f, multiple) for f in files]
+    rgb = np.random.default_rng(0).integers(0, 256, (480, 640, 3), dtype=np.uint8)
+    times: list[list[float]] = [[] for _ in files]
+    for runner in runners:
+        runner.predict_raw(rgb)
+    for _ in range(repeats):
+        for runner, spent in zip(runners, times, strict=True):
+            start = time.perf_counter()
+            runner.predict_raw(rgb)
+            spent.append(time.perf_counter() - start)
+    return [1000 * statistics.median(t) for t in times]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--site-model", type=Path, required=True, help="a fitted version folder (its fit.json beside)")
+    parser.add_argument("--methods", nargs="+", default=["minmax", "entropy", "percentile"])
+    parser.add_argument("--keep", nargs="+", default=list(KEEP), choices=KEEP, help="which nodes stay fp32")
+    parser.add_argument("--ops", nargs="+", default=list(OPS), choices=list(OPS), help="which kinds are quantised")
+    parser.add_argument("--frames", type=int, default=20, help="calibration frames per model")
+    parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--markdown", type=Path)
+    args = parser.parse_args()
+
+    from trainer.machine import cpu_description
+
+    site_card = load_card(args.site_model)
+    site_run = Path(site_card.training.config["train"]["out_dir"]).parent
+    holdout = DataSource(format="csv", root=site_run / "holdout.csv")
+    models = {
+        "kitchen 0.8.1 (test 850-999, colour camera)": (KITCHEN, KITCHEN_TEST, KITCHEN_COLOUR),
+        f"{site_card.name} (held out)": (args.site_model, holdout, None),
+    }
+    choices: list[tuple[str, str | None, str, str]] = [("fp32", None, "", "")] + [
+        (f"int8 {method}, fp32 nodes: {keep}, quantised: {ops}", method, keep, ops)
+        for method in args.methods
+        for keep in args.keep
+        for ops in args.ops
+    ]
+    rows: dict[str, list[str]] = {label: [] for label, *_ in choices}
+    with tempfile.TemporaryDirectory() as tmp:
+        for index, (model_label, (version, test, colour)) in enumerate(models.items()):
+            card = load_card(version)
+            readers = [open_source(DataSource.model_validate(s)) for s in card.training.config["data"]["train"]]
+            photos = calibration_frames(spread_photos(readers, args.frames), card.camera.width, card.camera.height)
+            files = []
+            for label, method, keep, ops in choices:
+                path = version / ONNX_FILE
+                if method:
+                    path = Path(tmp) / f"{index}-{method}-{keep}-{ops}.onnx"
+                    quantize_generator(version / ONNX_FILE, path, photos, card.input_multiple, method, keep, ops)
+                files.append(path)
+                scores = score(version, path, test, colour)
+                rows[label].append(f"{scores['delta1']:.3f} / {scores['rel']:.3f}")
+                print(model_label, label, rows[label][-1], flush=True)
+            if index == 0:
+                times = generator_ms(files, card.input_multiple, args.repeats)
+    for (label, *_), ms in zip(choices, times, strict=True):
+        rows[label].append(f"{ms:.1f} ms ({times[0] / ms:.2f}x)")
+    header = " | ".join(models)
+    table = (
+        f"Machine: {cpu_description()}. Calibrated on {args.frames} of each model's training frames; "
+        "δ1 / REL as the service runs each graph; generator time at 640x480, median of "
+        f"{args.repeats}, against fp32 in the same run.\n\n| graph | {header} | generator |\n|---|---|---|---|\n"
+        + "\n".join(f"| {label} | {' | '.join(cells)} |" for label, cells in rows.items())
+        + "\n"
+    )
+    command = (
+        f"python bench/int8.py --site-model {args.site_model} --methods {' '.join(args.methods)} "
+        f"--keep {' '.join(args.keep)} --ops {' '.join(args.ops)} --frames {args.frames}"
+    )
+    report(table, args.markdown, "int8 choices", command)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,165 @@
+"""The int8 graph: exported beside the fp32 one, parity-checked, listed in the card, and served on request.
+
+The model is the tiny one trained for a few steps on real RedKitchen frames; calibration
+reads its own training frames, as ``export --precision int8`` does for any model.
+"""
+
+from __future__ import annotations
+
+import io
+
+import httpx
+import numpy as np
+import onnx
+import pytest
+from conftest import REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, export_args, run_cli
+from PIL import Image
+
+from contract.card import CARD_FILE, INT8_ONNX_FILE, ONNX_FILE, TORCHSCRIPT_FILE, load_card, publish, sha256_file
+from contract.runtime import OnnxGenerator
+from harness.service import running_service
+from trainer.export import INT8_AGREEMENT
+from trainer.quantize import int8_parity
+
+PHOTO = (TUM_FRAME / "TUM_color.png").read_bytes()
+
+
+@pytest.fixture(scope="module")
+def int8_registry(trained_checkpoint, tmp_path_factory):
+    """The tiny model published with ``export --precision int8``; the export's own output beside it."""
+    out = tmp_path_factory.mktemp("int8")
+    evaluate_cli(trained_checkpoint, out / "eval", "850-851")
+    result = run_cli(
+        *export_args(trained_checkpoint, out / "eval" / "metrics.json", out / "weights"), "--precision", "int8"
+    )
+    return out / "weights", result.stdout
+
+
+def test_export_writes_an_int8_graph_beside_the_fp32_one_and_the_card_says_how(int8_registry):
+    registry, stdout = int8_registry
+    version = registry / "tiny" / "0.1.0"
+    card = load_card(version)
+    assert set(card.files) == {ONNX_FILE, TORCHSCRIPT_FILE, INT8_ONNX_FILE}
+    for name, digest in card.files.items():
+        assert sha256_file(version / name) == digest and f"{name}  sha256 {digest}" in stdout
+    assert card.int8 is not None and card.int8.file == INT8_ONNX_FILE
+    assert card.int8.calibration == "percentile" and card.int8.frames == 4  # the tiny config trains on 4 frames
+    assert card.int8.frames_from == ["7scenes-redkitchen 0-3"]
+    assert "Collecting tensor data" not in stdout  # ONNX Runtime's calibration chatter is not the command's output
+    # The first and last convolutions stay fp32: named in the card, and float in the graph.
+    graph = onnx.load(str(version / INT8_ONNX_FILE)).graph
+    assert len(card.int8.fp32_nodes) == 2
+    nodes = {node.name: node for node in graph.node}
+    assert all(name in nodes for name in card.int8.fp32_nodes)
+    assert sum(node.op_type == "QuantizeLinear" for node in graph.node) > 0
+    weights = {t.name: t for t in graph.initializer}
+    kept_weight = weights[nodes[card.int8.fp32_nodes[0]].input[1]]
+    assert kept_weight.data_type == onnx.TensorProto.FLOAT
+    assert "parity int8: depth within 1.25x of fp32" in stdout
+
+
+def test_int8_depth_agrees_with_fp32_within_the_tolerance_on_other_photos(int8_registry):
+    registry, _ = int8_registry
+    version = registry / "tiny" / "0.1.0"
+    card = load_card(version)
+    assert card.int8.parity["agreement"] >= INT8_AGREEMENT
+    kitchen = SEVEN_SCENES / "frame-000900.color.jpg"  # a test frame: not among the calibration frames
+    with Image.open(kitchen) as im:
+        photo = np.asarray(im.convert("RGB"))
+    parity = int8_parity(version / ONNX_FILE, version / INT8_ONNX_FILE, photo, card.input_multiple, card.depth_encoding)
+    assert parity["agreement"] >= INT8_AGREEMENT
+    # And the two graphs are not the same graph: int8 changes the numbers a little.
+    fp32 = OnnxGenerator(version / ONNX_FILE, card.input_multiple).predict_raw(photo)
+    int8 = OnnxGenerator(version / INT8_ONNX_FILE, card.input_multiple).predict_raw(photo)
+    assert 0 < np.abs(fp32 - int8).max() < 0.5
+
+
+def test_evaluate_scores_the_int8_graph_and_refuses_a_version_without_one(int8_registry, registry, tmp_path):
+    int8_version = int8_registry[0] / "tiny" / "0.1.0"
+    result = evaluate_cli(int8_version, tmp_path / "eval", "850-851", "--precision", "int8")
+    assert "| tiny 0.1.0 (ONNX int8) |" in result.stdout
+    refused = run_cli_failing(
+        "evaluate", str(registry / "tiny" / "0.1.0"), "--format", "7scenes", "--precision", "int8"
+    )
+    assert "no int8 graph" in refused
+
+
+def run_cli_failing(*args: str) -> str:
+    import subprocess
+    import sys
+
+    result = subprocess.run(
+        [sys.executable, "-m", "cli", *args, "--root", str(SEVEN_SCENES), "--frames", "850"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+    )
+    assert result.returncode != 0 and "Traceback" not in result.stderr
+    return result.stdout + result.stderr
+
+
+def depth(url: str, **params: str) -> httpx.Response:
+    return httpx.post(f"{url}/depth", files={"image": ("p.png", PHOTO)}, params=params, timeout=60)
+
+
+def _png(response: httpx.Response) -> np.ndarray:
+    assert response.status_code == 200, response.text
+    with Image.open(io.BytesIO(response.content)) as im:
+        return np.asarray(im).astype(np.float64)
+
+
+@pytest.fixture
+def both(int8_registry, registry, tmp_path):
+    """A registry with the int8 version (``quant``) and one without an int8 graph (``plain``)."""
+    target = tmp_path / "weights"
+    with_int8 = int8_registry[0] / "tiny" / "0.1.0"
+    card = load_card(with_int8).model_copy(update={"name": "quant"})
+    publish(target, card, {f: with_int8 / f for f in (ONNX_FILE, TORCHSCRIPT_FILE, INT8_ONNX_FILE)})
+    plain = registry / "tiny" / "0.1.0"
+    card = load_card(plain).model_copy(update={"name": "plain"})
+    publish(target, card, {f: plain / f for f in (ONNX_FILE, TORCHSCRIPT_FILE)})
+    return target
+
+
+def test_the_service_serves_both_precisions_and_names_the_one_used(both):
+    env = {"registry": str(both), "model": "quant", "threads": "1"}
+    with running_service(**env) as service:
+        fp32 = depth(service.url)
+        assert fp32.headers["x-precision"] == "fp32" and "x-precision-fallback" not in fp32.headers
+        int8 = depth(service.url, precision="int8")
+        assert int8.headers["x-precision"] == "int8"
+        a, b = _png(fp32), _png(int8)
+        valid = (a > 0) & (b > 0)
+        assert not np.array_equal(a, b) and (np.maximum(a, b)[valid] / np.minimum(a, b)[valid] < 1.25).mean() > 0.9
+
+        plain = depth(service.url, model="plain", precision="int8")
+        assert plain.headers["x-precision"] == "fp32"
+        assert plain.headers["x-precision-fallback"] == "int8 asked for; this version has no int8 graph"
+
+        wrong = depth(service.url, precision="fp16")
+        assert wrong.status_code == 422 and "precision" in wrong.text
+
+        listed = httpx.get(f"{service.url}/v1/models", timeout=10).json()["models"]
+        precisions = {m["name"]: m["versions"][0]["card"]["precisions"] for m in listed}
+        assert precisions["quant"] == ["fp32", "int8"] and precisions["plain"] == ["fp32"]
+
+    with running_service(**env, precision="int8") as service:
+        assert depth(service.url).headers["x-precision"] == "int8"
+        assert depth(service.url, precision="fp32").headers["x-precision"] == "fp32"
+
+
+def test_a_version_whose_int8_file_does_not_match_its_card_is_refused(both):
+    tampered = both / "quant" / "0.1.0"
+    card = load_card(tampered).model_copy(update={"version": "0.2.0"})
+    files = {f: tampered / f for f in (ONNX_FILE, TORCHSCRIPT_FILE, INT8_ONNX_FILE)}
+    broken = publish(both, card, files)
+    int8_file = broken / INT8_ONNX_FILE
+    int8_file.write_bytes(int8_file.read_bytes()[:-16])
+    env = {"registry": str(both), "model": "plain", "threads": "1"}
+    with running_service(**env) as service:
+        refused = depth(service.url, model="quant:0.2.0")
+        assert refused.status_code == 409
+        assert INT8_ONNX_FILE in refused.json()["detail"] and "sha256" in refused.json()["detail"]
+        # fp32 was not asked for either: the version is refused whole, and the one before keeps serving.
+        assert depth(service.url, model="quant").headers["x-model-version"] == "0.1.0"
+    assert (broken / CARD_FILE).is_file()
