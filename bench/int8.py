@@ -1,9 +1,11 @@
 """int8 choices, each measured: calibration method and which nodes stay fp32, on the kitchen and a fitted site.
 
-    python bench/int8.py --site-model runs/bench-levers/registry/no-discriminator-aims-lab/0.1.0 \
-        [--methods minmax entropy percentile] [--frames 20] [--markdown FILE]
+    python bench/int8.py --site-model runs/bench-fit/registry/aims-lab-default-30min/0.1.0 \
+        [--choices METHOD:FP32_NODES:QUANTISED ...] [--frames 20] [--markdown FILE]
 
-For each choice the published versions' ONNX graphs are quantised (``trainer.quantize``),
+A choice is a calibration method (minmax, entropy, percentile), the nodes left in fp32 (none,
+ends, ends+upsampling) and the kinds of node quantised (all, convolutions): ``trainer.quantize``.
+For each choice the published versions' ONNX graphs are quantised,
 calibrated on ``--frames`` of each model's own training frames, then scored as the
 service runs them: the bundled kitchen model on RedKitchen test frames 850-999 read at
 the colour camera, and the fitted site model on its held-out frames. The generator's
@@ -14,6 +16,7 @@ process, so read the ratio.
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import tempfile
 import time
@@ -28,13 +31,35 @@ from harness.fitting import REPO, report
 from trainer.config import DataSource
 from trainer.data.formats import open_source
 from trainer.evaluate import evaluate_frames
-from trainer.quantize import KEEP, OPS, calibration_frames, quantize_generator, spread_photos
+from trainer.quantize import KEEP, METHODS, OPS, calibration_frames, quantize_generator, spread_photos
 
 KITCHEN = REPO / "weights" / "rgb2cloud-7scenes" / "0.8.1"
 KITCHEN_TEST = DataSource(
     format="7scenes", root=REPO.parent / "shared" / "data" / "7scenes-redkitchen", frames="850-999"
 )
 KITCHEN_COLOUR = ColourCamera(fx=530, fy=530, cx=314.5, cy=239, baseline_m=0.009)
+
+
+#: What was measured: ONNX Runtime's defaults first (minmax, everything quantised), then one change at a time.
+CHOICES = [
+    ("minmax", "none", "all"),
+    ("percentile", "none", "all"),
+    ("percentile", "none", "convolutions"),
+    ("minmax", "ends", "all"),
+    ("entropy", "ends", "all"),
+    ("percentile", "ends", "all"),
+    ("percentile", "ends+upsampling", "all"),
+    ("minmax", "ends", "convolutions"),
+    ("percentile", "ends", "convolutions"),
+]
+
+
+def choice(text: str) -> tuple[str, str, str]:
+    """``METHOD:FP32_NODES:QUANTISED`` -> its three parts, each checked."""
+    parts = text.split(":")
+    if len(parts) != 3 or parts[0] not in METHODS or parts[1] not in KEEP or parts[2] not in OPS:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected METHOD:FP32_NODES:QUANTISED, e.g. percentile:ends:all")
+    return parts[0], parts[1], parts[2]
 
 
 def score(version: Path, onnx_file: Path, test: DataSource, colour: ColourCamera | None) -> dict:
@@ -58,7 +83,7 @@ def score(version: Path, onnx_file: Path, test: DataSource, colour: ColourCamera
 
 def generator_ms(files: list[Path], multiple: int, repeats: int) -> list[float]:
     """Median ms of each graph on one 640x480 photo, the graphs interleaved so load hits them alike."""
-    runners = [OnnxGenerator(f, multiple) for f in files]
+    runners = [OnnxGenerator(f, multiple, os.cpu_count() or 1) for f in files]  # the service's threads
     rgb = np.random.default_rng(0).integers(0, 256, (480, 640, 3), dtype=np.uint8)
     times: list[list[float]] = [[] for _ in files]
     for runner in runners:
@@ -74,9 +99,7 @@ def generator_ms(files: list[Path], multiple: int, repeats: int) -> list[float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--site-model", type=Path, required=True, help="a fitted version folder (its fit.json beside)")
-    parser.add_argument("--methods", nargs="+", default=["minmax", "entropy", "percentile"])
-    parser.add_argument("--keep", nargs="+", default=list(KEEP), choices=KEEP, help="which nodes stay fp32")
-    parser.add_argument("--ops", nargs="+", default=list(OPS), choices=list(OPS), help="which kinds are quantised")
+    parser.add_argument("--choices", nargs="+", type=choice, default=CHOICES, help="METHOD:FP32_NODES:QUANTISED")
     parser.add_argument("--frames", type=int, default=20, help="calibration frames per model")
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--markdown", type=Path)
@@ -92,10 +115,7 @@ def main() -> None:
         f"{site_card.name} (held out)": (args.site_model, holdout, None),
     }
     choices: list[tuple[str, str | None, str, str]] = [("fp32", None, "", "")] + [
-        (f"int8 {method}, fp32 nodes: {keep}, quantised: {ops}", method, keep, ops)
-        for method in args.methods
-        for keep in args.keep
-        for ops in args.ops
+        (f"int8: {method}, fp32 nodes {keep}, quantised {ops}", method, keep, ops) for method, keep, ops in args.choices
     ]
     rows: dict[str, list[str]] = {label: [] for label, *_ in choices}
     with tempfile.TemporaryDirectory() as tmp:
@@ -120,15 +140,13 @@ def main() -> None:
     header = " | ".join(models)
     table = (
         f"Machine: {cpu_description()}. Calibrated on {args.frames} of each model's training frames; "
-        "δ1 / REL as the service runs each graph; generator time at 640x480, median of "
+        "δ1 / REL as the service runs each graph; generator time at 640x480 on every core, median of "
         f"{args.repeats}, against fp32 in the same run.\n\n| graph | {header} | generator |\n|---|---|---|---|\n"
         + "\n".join(f"| {label} | {' | '.join(cells)} |" for label, cells in rows.items())
         + "\n"
     )
-    command = (
-        f"python bench/int8.py --site-model {args.site_model} --methods {' '.join(args.methods)} "
-        f"--keep {' '.join(args.keep)} --ops {' '.join(args.ops)} --frames {args.frames}"
-    )
+    named = " ".join(":".join(c) for c in args.choices)
+    command = f"python bench/int8.py --site-model {args.site_model} --choices {named} --frames {args.frames}"
     report(table, args.markdown, "int8 choices", command)
 
 

@@ -61,7 +61,7 @@ def median_ms(fn, repeats: int) -> float:
 def machine() -> str:
     import onnxruntime
 
-    flags = ", ".join(sorted(SPEED_FLAGS & cpu_flags())) or "none"
+    flags = ", ".join(sorted(set(SPEED_FLAGS) & cpu_flags())) or "none"
     return (
         f"{cpu_description()} (int8 and bf16 flags: {flags}), Python {platform.python_version()}, "
         f"ONNX Runtime {onnxruntime.__version__}"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -100,8 +101,8 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
     args = fit_args(data, tmp_path, start)
     at = args.index("--registry")
     began = time.monotonic()
-    stdout = run_cli(*args[:at], *args[at + 2 :]).stdout
-    assert time.monotonic() - began < 60 + BUDGET_MARGIN_S  # the budget holds
+    stdout = run_cli(*args[:at], *args[at + 2 :], "--precision", "int8").stdout
+    assert time.monotonic() - began < 60 + BUDGET_MARGIN_S  # the budget holds, the int8 graph's calibration in it
     assert "pairs: 24 found, 0 skipped" in stdout and "split: train 16, selection 2" in stdout
     assert "| fitted model |" in stdout and "| tiny 0.1.0, zero-shot (the start) |" in stdout
     own = tmp_path / "data" / "rgb2cloud" / "models"
@@ -129,6 +130,10 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
     assert card.generator == load_card(start).generator
     loss = card.training.config["loss"]
     assert (loss["gan"], loss["feature_matching"], loss["l1_depth"]) == (0, 0, 100)  # a fit's objective: the L1 alone
+    assert card.int8 is not None and card.int8.file in card.files
+    assert card.int8.frames_from == ["train.csv all"]  # calibrated on the run folder's train part
+    optim = card.training.config["optim"]
+    assert (optim["lr"], optim["beta1"]) == (0.0005, 0.9)  # and Adam set for a regression
     # The exact commands to serve it, and the service does.
     assert f"RGB2CLOUD_REGISTRY={own} RGB2CLOUD_MODEL=my-room:0.1.0 make serve" in stdout
     assert "/depth?model=my-room:0.1.0" in stdout
@@ -136,6 +141,8 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
         photo = next((data / "color").iterdir()).read_bytes()
         response = httpx.post(f"{service.url}/depth", files={"image": photo}, timeout=30)
         assert response.status_code == 200 and response.headers["x-model-version"] == "0.1.0"
+        int8 = httpx.post(f"{service.url}/depth", files={"image": photo}, params={"precision": "int8"}, timeout=30)
+        assert int8.status_code == 200 and int8.headers["x-precision"] == "int8"  # fit --precision int8 shipped one
         listed = httpx.get(f"{service.url}/v1/models", timeout=10).json()["models"][0]["versions"][0]["card"]
         assert [d["licence"] for d in listed["data"]] == [d.licence for d in card.training.data]
     assert json.loads((tmp_path / "run" / "fit.json").read_text())["start_from"] == str(start)
@@ -306,5 +313,8 @@ def test_the_plan_spends_what_the_budget_leaves_and_refuses_a_budget_too_small()
         checkpoint_every=22,
         deadline_s=490,
     )
+    # An int8 graph too: its calibration's 20 frames at 4 predictions each, and 20 s more: 60 s, 30 steps fewer.
+    int8 = plan_training(budget_s=600, spent_s=30, step_s=2.0, work=dataclasses.replace(work, int8=True))
+    assert (int8.train_s, int8.steps, int8.deadline_s) == (390, 195, 430)
     with pytest.raises(ValueError, match="leaves no time to train"):
         plan_training(budget_s=120, spent_s=30, step_s=2.0, work=work)

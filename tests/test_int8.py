@@ -46,15 +46,16 @@ def test_export_writes_an_int8_graph_beside_the_fp32_one_and_the_card_says_how(i
     assert card.int8.calibration == "percentile" and card.int8.frames == 4  # the tiny config trains on 4 frames
     assert card.int8.frames_from == ["7scenes-redkitchen 0-3"]
     assert "Collecting tensor data" not in stdout  # ONNX Runtime's calibration chatter is not the command's output
-    # The first and last convolutions stay fp32: named in the card, and float in the graph.
+    # Every convolution is an integer one: each weight is stored in int8, none left in fp32.
     graph = onnx.load(str(version / INT8_ONNX_FILE)).graph
-    assert len(card.int8.fp32_nodes) == 2
-    nodes = {node.name: node for node in graph.node}
-    assert all(name in nodes for name in card.int8.fp32_nodes)
-    assert sum(node.op_type == "QuantizeLinear" for node in graph.node) > 0
+    assert card.int8.fp32_nodes == []
     weights = {t.name: t for t in graph.initializer}
-    kept_weight = weights[nodes[card.int8.fp32_nodes[0]].input[1]]
-    assert kept_weight.data_type == onnx.TensorProto.FLOAT
+    convolutions = [node for node in graph.node if node.op_type in ("Conv", "ConvTranspose")]
+    producers = {out: node for node in graph.node for out in node.output}
+    for node in convolutions:
+        dequantised = producers[node.input[1]]  # the weight comes through a DequantizeLinear of int8
+        assert dequantised.op_type == "DequantizeLinear"
+        assert weights[dequantised.input[0]].data_type == onnx.TensorProto.INT8
     assert "parity int8: depth within 1.25x of fp32" in stdout
 
 

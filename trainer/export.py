@@ -151,7 +151,7 @@ def publish_int8(
             f"image's pixels (< {INT8_AGREEMENT:.0%})"
         )
     return Int8Graph(
-        method=f"ONNX Runtime static QDQ of the {QUANTISED_OPS}: per-channel int8 weights, uint8 activations",
+        method="ONNX Runtime static QDQ: per-channel int8 weights, uint8 activations",
         calibration=done.method,
         frames=done.frames,
         frames_from=[describe(source) for source in sources],

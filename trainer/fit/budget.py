@@ -25,6 +25,7 @@ from trainer.devices import Distributed, pick_device
 from trainer.gan import Precision, build_networks, gan_step
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.losses import GANLoss
+from trainer.quantize import CALIBRATION_FRAMES
 from trainer.train import training_loader
 
 #: Runs timed after one warm-up run; their median is the plan's figure.
@@ -36,6 +37,11 @@ VALIDATIONS = 4
 #: graph without a median, 50.7 s with ``--inference median_radius=2``; these figures carry a margin.
 EXPORT_BASE_S = 20.0
 EXPORT_PER_TAP_S = 2.4
+#: ``--precision int8``: preparing and quantising the graph, then calibration, whose frames each cost a few
+#: predictions (every activation is an output). ``time rgb2cloud export weights/rgb2cloud-7scenes/0.8.1 ...``
+#: took 15.9 s, and 22.7 s with ``--precision int8``; these figures carry a margin (they reserve 23 s for that 6.8 s).
+INT8_BASE_S = 20.0
+INT8_PER_FRAME_PREDICTIONS = 4
 #: Reading the train frames for the baselines, and the rest of scoring, beside the predictions.
 SCORING_OVERHEAD_S = 15.0
 #: Share of the steps over which the learning rate decays linearly to zero.
@@ -120,6 +126,8 @@ class Workload:
     predict_s: float
     scores_start: bool
     median_taps: int
+    #: The publish also quantises an int8 graph (``fit --precision int8``).
+    int8: bool = False
 
     def validation_s(self) -> float:
         """The selection frames scored VALIDATIONS times, plus once before the first step."""
@@ -129,6 +137,8 @@ class Workload:
         """Scoring the held-out frames (the fitted model, and the start on ONNX Runtime), then export."""
         models = 1 + (2 if self.scores_start else 0)  # the start's ONNX graph runs about twice as slow on CPU
         export_s = EXPORT_BASE_S + EXPORT_PER_TAP_S * self.median_taps
+        if self.int8:  # calibration runs the frames through a graph that also outputs every activation
+            export_s += INT8_BASE_S + INT8_PER_FRAME_PREDICTIONS * CALIBRATION_FRAMES * self.predict_s
         return models * self.holdout_frames * self.predict_s + export_s + SCORING_OVERHEAD_S
 
 

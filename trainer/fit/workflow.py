@@ -204,7 +204,8 @@ def _prepare(options: FitOptions, run: Path, progress: Progress, started: float)
     step_s, predict_s = measure_seconds(config)
     radius = config.inference.median_radius
     taps = (2 * radius + 1) ** 2 if radius else 0
-    work = Workload(len(split.selection), len(split.holdout), predict_s, start is not None, taps)
+    int8 = options.precision == "int8"
+    work = Workload(len(split.selection), len(split.holdout), predict_s, start is not None, taps, int8)
     plan = plan_training(options.budget_min * 60, time.monotonic() - started, step_s, work, options.steps)
     progress.say(plan.line())
     config.train = config.train.model_copy(
