@@ -10,6 +10,7 @@ from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from contract.registries import checkout_weights, default_registry
+from contract.runtime import Precision
 
 
 class Settings(BaseSettings):
@@ -34,7 +35,7 @@ class Settings(BaseSettings):
         4, ge=2, description="models kept loaded at once: the default and at least one a request names"
     )
     backend: Literal["onnx", "torchscript"] = "onnx"
-    precision: Literal["fp32", "int8"] = Field(
+    precision: Precision = Field(
         "fp32",
         description="the generator graph requests get without precision=: fp32, or int8 where a version ships one "
         "(ONNX Runtime only; a version without one serves fp32 and says so in X-Precision-Fallback)",

@@ -17,9 +17,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import tempfile
-import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +27,7 @@ from contract.card import ONNX_FILE, load_card
 from contract.geometry import ColourCamera
 from contract.runtime import OnnxGenerator
 from harness.fitting import REPO, report
+from harness.timing import interleaved_ms
 from trainer.config import DataSource
 from trainer.data.formats import open_source
 from trainer.evaluate import evaluate_frames
@@ -85,15 +85,8 @@ def generator_ms(files: list[Path], multiple: int, repeats: int) -> list[float]:
     """Median ms of each graph on one 640x480 photo, the graphs interleaved so load hits them alike."""
     runners = [OnnxGenerator(f, multiple, os.cpu_count() or 1) for f in files]  # the service's threads
     rgb = np.random.default_rng(0).integers(0, 256, (480, 640, 3), dtype=np.uint8)
-    times: list[list[float]] = [[] for _ in files]
-    for runner in runners:
-        runner.predict_raw(rgb)
-    for _ in range(repeats):
-        for runner, spent in zip(runners, times, strict=True):
-            start = time.perf_counter()
-            runner.predict_raw(rgb)
-            spent.append(time.perf_counter() - start)
-    return [1000 * statistics.median(t) for t in times]
+    calls = {str(i): partial(runner.predict_raw, rgb) for i, runner in enumerate(runners)}
+    return list(interleaved_ms(calls, repeats).values())
 
 
 def main() -> None:

@@ -20,7 +20,6 @@ import statistics
 import tempfile
 import time
 import zlib
-from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import partial
@@ -41,21 +40,12 @@ from contract.codec import rgb_to_input
 from contract.geometry import Intrinsics, pad_to_multiple, point_cloud
 from contract.runtime import OnnxGenerator
 from harness.service import resident_mb, running_service, server_timing
+from harness.timing import interleaved_ms, median_ms
 from trainer.machine import SPEED_FLAGS, cpu_description, cpu_flags
 
 REPO = Path(__file__).resolve().parents[1]
 
 DEFAULT_IMAGE = REPO.parent / "shared/data/7scenes-redkitchen/frame-000900.color.jpg"
-
-
-def median_ms(fn, repeats: int) -> float:
-    fn()  # warm
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times) * 1000
 
 
 def machine() -> str:
@@ -66,19 +56,6 @@ def machine() -> str:
         f"{cpu_description()} (int8 and bf16 flags: {flags}), Python {platform.python_version()}, "
         f"ONNX Runtime {onnxruntime.__version__}"
     )
-
-
-def interleaved_ms(calls: dict[str, Callable[[], object]], repeats: int) -> dict[str, float]:
-    """Median ms of each call, the calls taking turns, so that load on a shared machine hits them alike."""
-    times: dict[str, list[float]] = {label: [] for label in calls}
-    for call in calls.values():
-        call()  # warm
-    for _ in range(repeats):
-        for label, call in calls.items():
-            start = time.perf_counter()
-            call()
-            times[label].append(time.perf_counter() - start)
-    return {label: statistics.median(t) * 1000 for label, t in times.items()}
 
 
 def int8_times(args: argparse.Namespace, photo: Photo) -> dict[str, float]:
