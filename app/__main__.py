@@ -7,6 +7,7 @@ import sys
 
 import uvicorn
 from pydantic import ValidationError
+from pydantic_core import ErrorDetails
 
 from app.catalog import ModelCatalog
 from app.loading import ModelLoadError
@@ -16,6 +17,13 @@ from app.settings import Settings
 log = logging.getLogger("rgb2cloud")
 
 
+def setting_problem(error: ErrorDetails) -> str:
+    """One validation error as a line: the variable and its value, or the whole settings' problem as it is."""
+    if not error["loc"]:
+        return error["msg"].removeprefix("Value error, ")
+    return f"RGB2CLOUD_{'_'.join(map(str, error['loc'])).upper()}={error.get('input')!r}: {error['msg']}"
+
+
 def main() -> None:
     """Read the settings and load and verify the default model first: a bad setting or model is one log
     line and exit status 1."""
@@ -23,10 +31,7 @@ def main() -> None:
     try:
         settings = Settings()
     except ValidationError as e:
-        problems = "; ".join(
-            f"RGB2CLOUD_{'_'.join(map(str, error['loc'])).upper()}={error.get('input')!r}: {error['msg']}"
-            for error in e.errors()
-        )
+        problems = "; ".join(setting_problem(error) for error in e.errors())
         log.critical("cannot start: %s", problems)
         sys.exit(1)
     catalog = ModelCatalog(settings)

@@ -1,4 +1,4 @@
-"""Which camera took the photo, and the size at which the generator sees it as its own camera would.
+"""Which camera took the photo: the service resamples it to the model's camera (``contract.resample``).
 
 The generator learned one camera (the card's ``camera``): things look as big as they
 looked through it. A photo from a longer lens makes everything look bigger, and so
@@ -117,20 +117,3 @@ def photo_camera(
     cx = query.cx if query.cx is not None else centred.cx
     cy = query.cy if query.cy is not None else centred.cy
     return PhotoCamera(Intrinsics(fx, fy, cx, cy, width, height), source)
-
-
-def generator_size(camera: Intrinsics, model: Intrinsics, max_pixels: int) -> tuple[int, int]:
-    """(width, height) at which the photo has the model's focal length, shrunk to ``max_pixels`` if over."""
-    width = camera.width * model.fx / camera.fx
-    height = camera.height * model.fy / camera.fy
-    shrink = focal_ratio(width, height, max_pixels)
-    return max(1, round(width * shrink)), max(1, round(height * shrink))
-
-
-def focal_ratio(width: float, height: float, max_pixels: int) -> float:
-    """The generator's focal length over the model's for a photo that needs ``width`` x ``height`` to match.
-
-    1 when the photo fits ``max_pixels`` at the model's focal length; below 1 when it must be
-    shrunk further, and the generator then sees everything smaller, so farther, than in training.
-    """
-    return min(1.0, math.sqrt(max_pixels / (width * height)))

@@ -194,7 +194,7 @@ class ModelCatalog:
 
     def describe(self) -> dict[str, Any]:
         """What /v1/models shows: every model and version, loaded or refused, with its card's summary."""
-        loaded = {(m.card.name, m.card.version) for m in self.loaded()}
+        loaded = {(m.card.name, m.card.version): m for m in self.loaded()}
         models = []
         registries = self.registries
         for name, versions in registries.models().items():
@@ -204,6 +204,7 @@ class ModelCatalog:
                 refused = self.refusal(name, version) if self._still_refused((name, version)) else None
                 try:
                     entry["card"] = card_summary(load_card(registries.folder(name, version)))
+                    entry["card"]["precisions"] = self._precisions(entry["card"], loaded.get((name, version)))
                 except CardError as e:
                     refused = refused or str(e)
                 entry["refused"] = refused
@@ -215,6 +216,13 @@ class ModelCatalog:
             "max_loaded": self.settings.max_loaded,
             "models": models,
         }
+
+    def _precisions(self, summary: dict[str, Any], model: LoadedModel | None) -> list[str]:
+        """The precisions this service can run for a version: a loaded one's graphs that passed their checks,
+        else those its card ships that this backend runs."""
+        if model is not None:
+            return list(model.generators)
+        return summary["precisions"] if self.settings.backend == "onnx" else ["fp32"]
 
 
 def card_summary(card: ModelCard) -> dict[str, Any]:

@@ -20,18 +20,20 @@ from pathlib import Path
 import httpx
 from tqdm import tqdm
 
+from app.settings import Settings
+
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".webp", ".tif", ".tiff", ".bmp", ".gif"}
 OUTPUTS = {"depth": ("/depth", ".depth.png"), "pointcloud": ("/pointcloud", ".ply")}
 
 
-def service_url() -> str:
+def service_url(settings: Settings | None = None) -> str:
     """Where ``make serve`` listens, from the same settings: ``RGB2CLOUD_HOST`` and ``RGB2CLOUD_PORT``.
 
     A service bound to every interface (0.0.0.0) is reached on the loopback address.
     """
-    host = os.environ.get("RGB2CLOUD_HOST") or "127.0.0.1"
-    host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
-    return f"http://{host}:{os.environ.get('RGB2CLOUD_PORT') or 8000}"
+    settings = settings or Settings()
+    host = "127.0.0.1" if settings.host in ("0.0.0.0", "::") else settings.host
+    return f"http://{host}:{settings.port}"
 
 
 @dataclass

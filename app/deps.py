@@ -79,6 +79,7 @@ def camera_query(
 
 def get_request_settings(
     settings: SettingsDep,
+    model: Annotated[LoadedModel, Depends(get_model)],
     precision: Annotated[
         Precision | None,
         Query(
@@ -87,7 +88,17 @@ def get_request_settings(
         ),
     ] = None,
 ) -> RequestSettings:
-    """The size limits a request's image is held to, from the settings, and the precision it wants."""
+    """The size limits a request's image is held to, from the settings, and the precision it wants.
+
+    A request that names a precision whose graph this version ships but may not serve here (int8 that
+    disagrees with fp32 on this machine) gets 409: it asked for that graph, and it would get other depth.
+    Without ``precision=`` the settings' precision falls back to fp32, and the response says why.
+    """
+    if precision is not None and precision in model.disagrees:
+        raise HTTPException(
+            409,
+            f"precision={precision}: {model.label}: {model.unserved[precision]}; use precision=fp32",
+        )
     return RequestSettings(settings.max_pixels, settings.inference_max_pixels, precision or settings.precision)
 
 

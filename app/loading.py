@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from app.settings import Settings
 from contract.card import (
@@ -21,7 +22,7 @@ from contract.card import (
     verify_files,
 )
 from contract.codec import INPUT_ENCODING
-from contract.runtime import ExportedGenerator, OnnxGenerator, Precision
+from contract.runtime import INT8_AGREEMENT, ExportedGenerator, OnnxGenerator, Precision, int8_agreement
 
 
 class ModelLoadError(Exception):
@@ -38,6 +39,11 @@ class LoadedModel:
     warmup_seconds: float
     #: The size of the weights files the runtimes hold: what /metrics counts per loaded model.
     weights_bytes: int
+    #: Why a precision is not served by this version: the graph is not there (or not for this backend), or
+    #: it is there and disagrees with fp32 on this machine (``disagrees``, which a request asking for it
+    #: explicitly gets as 409).
+    unserved: dict[Precision, str] = field(default_factory=dict)
+    disagrees: set[Precision] = field(default_factory=set)
     #: One generator call at a time: it already uses every inference thread, while the
     #: other pool workers decode and encode around it.
     lock: threading.Lock = field(default_factory=threading.Lock)
@@ -126,10 +132,16 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
     if file_name not in card.files:
         raise ModelLoadError(f"{folder / file_name}: the card lists no such file for backend {settings.backend!r}")
     paths: dict[Precision, Path] = {"fp32": folder / file_name}
-    if settings.backend == "onnx" and card.int8 is not None:
+    unserved: dict[Precision, str] = {}
+    if card.int8 is None:
+        unserved["int8"] = "this version has no int8 graph"
+    elif settings.backend != "onnx":
+        unserved["int8"] = f"the {settings.backend} backend runs the fp32 graph only"
+    else:
         paths["int8"] = folder / card.int8.file
     generators = {precision: _runner(path, card, settings) for precision, path in paths.items()}
-    model = LoadedModel(card, folder, generators, 0.0, sum(path.stat().st_size for path in paths.values()))
+    weights_bytes = sum(path.stat().st_size for path in paths.values())
+    model = LoadedModel(card, folder, generators, 0.0, weights_bytes, unserved)
     start = time.perf_counter()
     blank = np.zeros((card.camera.height, card.camera.width, 3), dtype=np.uint8)
     for precision, path in paths.items():
@@ -139,7 +151,31 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
                 f"{path}: warm-up returned {warm.shape} for a {card.camera.width}x{card.camera.height} input"
             )
     model.warmup_seconds = time.perf_counter() - start
+    if "int8" in generators and (why := _int8_disagreement(model, folder)):
+        del model.generators["int8"]
+        model.unserved["int8"] = why
+        model.disagrees.add("int8")
     return model
+
+
+def _int8_disagreement(model: LoadedModel, folder: Path) -> str | None:
+    """Why the int8 graph may not be served here: its depth on the version's sample photo is not fp32's.
+
+    Export checked the two on the exporting machine; integer arithmetic differs between CPUs (saturation
+    without VNNI), so every machine that loads the version checks again before serving int8.
+    """
+    int8 = model.card.int8
+    if int8 is None or int8.sample is None:
+        return None
+    with Image.open(folder / int8.sample) as im:
+        sample = np.asarray(im.convert("RGB"))
+    parity = int8_agreement(model.predict_depth(sample, "fp32"), model.predict_depth(sample, "int8"))
+    if parity["agreement"] >= INT8_AGREEMENT:
+        return None
+    return (
+        f"its int8 graph disagrees with fp32 on this machine: within 1.25x on {parity['agreement']:.1%} of the "
+        f"sample's pixels ({int8.parity['agreement']:.1%} at export, {INT8_AGREEMENT:.0%} needed)"
+    )
 
 
 def _runner(path: Path, card: ModelCard, settings: Settings) -> ExportedGenerator:

@@ -32,6 +32,8 @@ EXPOSED_HEADERS = [
     "X-Intrinsics",
     "X-Intrinsics-Source",
     "X-Focal-Ratio",
+    "X-Precision",
+    "X-Precision-Fallback",
     "X-Inference-Ms",
     "Server-Timing",
     "Retry-After",

@@ -6,13 +6,13 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from PIL import Image
 
-from app.camera import CameraQuery, PhotoCamera, focal_ratio, generator_size, photo_camera
+from app.camera import CameraQuery, PhotoCamera, photo_camera
 from app.imaging import decode_image, encode_colormap_png, encode_depth_png
 from app.loading import LoadedModel
 from app.ply import encode_ply
 from contract.geometry import Intrinsics, point_cloud
+from contract.resample import depth_at_photo
 from contract.runtime import Precision
 
 
@@ -49,20 +49,8 @@ class Stopwatch:
 def infer(
     model: LoadedModel, rgb: np.ndarray, camera: Intrinsics, max_pixels: int, precision: Precision = "fp32"
 ) -> tuple[np.ndarray, float]:
-    """Depth in metres at the photo's size, the photo resampled to the model's focal length first.
-
-    The resampled photo is at most ``max_pixels`` (beyond it, it is shrunk further: the cost of a
-    very wide view is bounded, at some cost in accuracy); the depth is resized back to the photo.
-    Also returns the generator's focal length over the model's: 1 unless the photo was shrunk further.
-    """
-    h, w = rgb.shape[:2]
-    model_camera = model.card.camera
-    ratio = focal_ratio(w * model_camera.fx / camera.fx, h * model_camera.fy / camera.fy, max_pixels)
-    size = generator_size(camera, model_camera, max_pixels)
-    if size == (w, h):
-        return model.predict_depth(rgb, precision), ratio
-    depth = model.predict_depth(np.asarray(Image.fromarray(rgb).resize(size, Image.BILINEAR)), precision)
-    return np.asarray(Image.fromarray(depth, mode="F").resize((w, h), Image.BILINEAR), dtype=np.float32), ratio
+    """Depth in metres at the photo's size by the one rescale rule (``contract.resample``), and the focal ratio."""
+    return depth_at_photo(lambda seen: model.predict_depth(seen, precision), rgb, camera, model.card.camera, max_pixels)
 
 
 @dataclass
@@ -79,7 +67,7 @@ class Inferred:
 
     def headers(self, model: LoadedModel) -> dict[str, str]:
         """Which model, graph and camera made the depth; ``X-Focal-Ratio`` below 1 says the photo was shrunk
-        further, and ``X-Precision-Fallback`` that the precision asked for is not in this version."""
+        further, and ``X-Precision-Fallback`` why the precision asked for is not served by this version."""
         headers = {
             "X-Model-Name": model.card.name,
             "X-Model-Version": model.card.version,
@@ -89,7 +77,7 @@ class Inferred:
             "X-Focal-Ratio": f"{self.focal_ratio:.4f}",
         }
         if self.precision != self.wanted:
-            headers["X-Precision-Fallback"] = f"{self.wanted} asked for; this version has no {self.wanted} graph"
+            headers["X-Precision-Fallback"] = f"{self.wanted} asked for; {model.unserved[self.wanted]}"
         return headers
 
 

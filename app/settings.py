@@ -3,18 +3,48 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from contract.registries import checkout_weights, default_registry
+from contract.resample import INFERENCE_MAX_PIXELS
 from contract.runtime import Precision
+
+PREFIX = "RGB2CLOUD_"
+#: Variables that were settings once, and what took their place. A deployment that still sets one would
+#: otherwise start without a word and serve another model, so the service refuses to start.
+RETIRED_VARIABLES = {
+    "RGB2CLOUD_MODEL_NAME": "RGB2CLOUD_MODEL=NAME",
+    "RGB2CLOUD_MODEL_VERSION": "RGB2CLOUD_MODEL=NAME:VERSION",
+}
+
+
+def unknown_variables(environ: Mapping[str, str]) -> list[str]:
+    """One message per ``RGB2CLOUD_*`` variable in ``environ`` that is no setting: retired (with its successor)
+    or unknown (a typo: it would be ignored, and the default used in its place)."""
+    known = {PREFIX + name.upper() for name in Settings.model_fields}
+    problems = []
+    for variable in sorted(environ):
+        if not variable.upper().startswith(PREFIX) or variable.upper() in known:
+            continue
+        if variable.upper() in RETIRED_VARIABLES:
+            problems.append(f"{variable} is retired: set {RETIRED_VARIABLES[variable.upper()]} instead")
+        else:
+            problems.append(f"{variable} is not a setting (see app/settings.py for the RGB2CLOUD_* settings)")
+    return problems
 
 
 class Settings(BaseSettings):
-    """Read from the environment (RGB2CLOUD_REGISTRY=..., RGB2CLOUD_PORT=...) or passed directly."""
+    """Read from the environment (RGB2CLOUD_REGISTRY=..., RGB2CLOUD_PORT=...) or passed directly.
+
+    The only reader of ``RGB2CLOUD_*`` variables: the service, ``fit``, ``export`` and the client all
+    take their registries, host and port from here. A retired or unknown variable in the environment
+    fails validation rather than being ignored.
+    """
 
     model_config = SettingsConfigDict(env_prefix="RGB2CLOUD_", extra="forbid")
 
@@ -55,7 +85,7 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(20 * 1024 * 1024, ge=1, description="larger bodies get 413 before buffering")
     max_pixels: int = Field(40_000_000, ge=1, description="decoded width x height limit (pixel bombs)")
     inference_max_pixels: int = Field(
-        1280 * 960,
+        INFERENCE_MAX_PIXELS,
         ge=1,
         description="the most pixels the generator sees: a photo resampled to the model's focal length beyond "
         "this is shrunk further; depth comes back at the photo's size",
@@ -63,3 +93,13 @@ class Settings(BaseSettings):
     max_queue: int = Field(8, ge=0, description="requests waiting for inference beyond this get 503")
     retry_after_s: int = Field(1, ge=0, description="Retry-After on 503")
     cors_origins: list[str] = Field(default_factory=list, description="allowed browser origins; none by default")
+
+    @model_validator(mode="after")
+    def _coherent(self) -> Settings:
+        if problems := unknown_variables(os.environ):
+            raise ValueError("; ".join(problems))
+        if self.backend == "torchscript" and self.precision == "int8":
+            raise ValueError(
+                "RGB2CLOUD_PRECISION=int8 needs RGB2CLOUD_BACKEND=onnx: the int8 graphs run on ONNX Runtime only"
+            )
+        return self

@@ -8,27 +8,29 @@ them. Both copies are fitted with the same budget and split (train on ``learn*``
 ``test*``), each from the bundled start, each in its own process. Then one service serves
 both published models, and each recording's held-out photos are posted at their own size
 with their own focal length (``fx`` in the query, as a user with a calibrated camera sends
-it) and scored against their own depth. Fit trains a large recording at a smaller scale;
-the service must feed its model photos at exactly that scale, so the two rows should agree.
+it) and scored against their own depth, beside ``rgb2cloud evaluate``'s score of the same
+version. Fit trains a large recording at a smaller scale; fit's table, evaluate and the
+service all feed the model photos at that scale (``contract.resample``), so the three scores
+should agree to the third decimal.
 """
 
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
-import httpx
 import numpy as np
 from PIL import Image
 
 from contract.card import load_card
 from contract.geometry import Intrinsics
 from harness.fitting import bench_arguments, fit_once, report
-from harness.service import running_service
-from trainer.data.frames import read_depth_png
+from harness.service import ServedDepth, running_service
+from trainer.config import DataSource
+from trainer.data.formats import open_source
+from trainer.data.frames import Frame
+from trainer.evaluate import evaluate_frames, load_predictor
 from trainer.machine import cpu_description
-from trainer.metrics import MetricAccumulator
 
 REPO = Path(__file__).resolve().parents[1]
 SITE = REPO.parent / "shared" / "data" / "mosd-tabletop"
@@ -56,19 +58,15 @@ def enlarged_copy(target: Path, factor: int) -> Intrinsics:
     return camera
 
 
-def served_scores(url: str, model: str, root: Path, camera: Intrinsics) -> dict[str, float]:
-    """The held-out photos of ``root`` through the service at their own size and focal length."""
-    scores, ratios = MetricAccumulator(), set()
-    for colour in sorted((root / "color").glob("test*.jpg")):
-        params = {"model": model, "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy}
-        r = httpx.post(f"{url}/depth", files={"image": colour.read_bytes()}, params=params, timeout=120)
-        r.raise_for_status()
-        ratios.add(r.headers["x-focal-ratio"])
-        with Image.open(io.BytesIO(r.content)) as im:
-            depth = np.asarray(im, dtype=np.float64) / 1000.0
-        scores.add(depth, read_depth_png(root / "depth" / f"{colour.stem}.png", 1000.0), camera)
-    result = scores.result()
-    result["focal_ratio"] = ", ".join(sorted(ratios))
+def held_out(root: Path) -> list[Frame]:
+    """The recording's held-out ``test*`` captures, read as fit reads them."""
+    reader = open_source(DataSource(format="folders", root=root, frames="test*"))
+    return [reader[i] for i in range(len(reader))]
+
+
+def evaluated(version: Path, frames: list[Frame]) -> dict:
+    """``rgb2cloud evaluate``'s scores of a published version on ``frames`` (the same code, in process)."""
+    result, _, _ = evaluate_frames(load_predictor(version), frames, min_m=0.1, max_m=10.0)
     return result
 
 
@@ -85,20 +83,24 @@ def main() -> None:
     versions = {label: fit_once(root, names[label], OUT, *options) for label, (root, _) in recordings.items()}
     rows = []
     with running_service(registry=str(OUT / "registry"), model=f"{names['640x480 (as recorded)']}:0.1.0") as service:
-        for label, (root, camera) in recordings.items():
+        for label, (root, _) in recordings.items():
             card = load_card(versions[label])
-            served = served_scores(service.url, f"{card.name}:{card.version}", root, camera)
+            frames = held_out(root)
+            served_depth = ServedDepth(service.url, f"{card.name}:{card.version}")
+            served, _, _ = evaluate_frames(served_depth, frames, min_m=0.1, max_m=10.0)
+            evaluate = evaluated(versions[label], frames)
             own = card.metrics[0]
             trained = f"{card.camera.width}x{card.camera.height}, fx {card.camera.fx:.1f}"
             rows.append(
-                f"| {label} | {trained} | {card.training.steps} | {own.delta1:.3f} / {own.rel:.3f} | "
-                f"{served['delta1']:.3f} / {served['rel']:.3f} | {served['focal_ratio']} |"
+                f"| {label} | {trained} | {card.training.steps} | {own.delta1:.4f} / {own.rel:.4f} | "
+                f"{evaluate['delta1']:.4f} / {evaluate['rel']:.4f} | "
+                f"{served['delta1']:.4f} / {served['rel']:.4f} | {', '.join(sorted(served_depth.focal_ratios))} |"
             )
     table = (
         f"Machine: {cpu_description()}. mosd-tabletop, {args.budget:g}-minute fits, 62 held-out `test*` captures.\n\n"
         "| recording | card camera (trained at) | steps (the published checkpoint) | fit's table δ1 / REL | "
-        "served δ1 / REL | X-Focal-Ratio |\n"
-        "|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n"
+        "evaluate δ1 / REL | served δ1 / REL | X-Focal-Ratio |\n"
+        "|---|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n"
     )
     report(table, args.markdown, "A recording's resolution", f"python bench/fit_scale.py --budget {args.budget:g}")
 

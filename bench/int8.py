@@ -1,10 +1,11 @@
 """int8 choices, each measured: calibration method and which nodes stay fp32, on the kitchen and a fitted site.
 
     python bench/int8.py --site-model runs/bench-fit/registry/aims-lab-default-30min/0.1.0 \
-        [--choices METHOD:FP32_NODES:QUANTISED ...] [--frames 20] [--markdown FILE]
+        [--choices METHOD:FP32_NODES:QUANTISED:WEIGHTS ...] [--frames 20] [--markdown FILE]
 
 A choice is a calibration method (minmax, entropy, percentile), the nodes left in fp32 (none,
-ends, ends+upsampling) and the kinds of node quantised (all, convolutions): ``trainer.quantize``.
+ends, ends+upsampling), the kinds of node quantised (all, convolutions) and the weights' bits
+(8bit, or 7bit: ``reduce_range``, which cannot saturate on CPUs without VNNI): ``trainer.quantize``.
 For each choice the published versions' ONNX graphs are quantised,
 calibrated on ``--frames`` of each model's own training frames, then scored as the
 service runs them: the bundled kitchen model on RedKitchen test frames 850-999 read at
@@ -30,8 +31,8 @@ from harness.fitting import REPO, report
 from harness.timing import interleaved_ms
 from trainer.config import DataSource
 from trainer.data.formats import open_source
-from trainer.evaluate import evaluate_frames
-from trainer.quantize import KEEP, METHODS, OPS, calibration_frames, quantize_generator, spread_photos
+from trainer.evaluate import Predictor, evaluate_frames
+from trainer.quantize import KEEP, METHODS, OPS, calibration_frames, quantize_generator
 
 KITCHEN = REPO / "weights" / "rgb2cloud-7scenes" / "0.8.1"
 KITCHEN_TEST = DataSource(
@@ -42,41 +43,41 @@ KITCHEN_COLOUR = ColourCamera(fx=530, fy=530, cx=314.5, cy=239, baseline_m=0.009
 
 #: What was measured: ONNX Runtime's defaults first (minmax, everything quantised), then one change at a time.
 CHOICES = [
-    ("minmax", "none", "all"),
-    ("percentile", "none", "all"),
-    ("percentile", "none", "convolutions"),
-    ("minmax", "ends", "all"),
-    ("entropy", "ends", "all"),
-    ("percentile", "ends", "all"),
-    ("percentile", "ends+upsampling", "all"),
-    ("minmax", "ends", "convolutions"),
-    ("percentile", "ends", "convolutions"),
+    ("minmax", "none", "all", "8bit"),
+    ("percentile", "none", "all", "8bit"),
+    ("percentile", "none", "convolutions", "8bit"),
+    ("minmax", "ends", "all", "8bit"),
+    ("entropy", "ends", "all", "8bit"),
+    ("percentile", "ends", "all", "8bit"),
+    ("percentile", "ends+upsampling", "all", "8bit"),
+    ("minmax", "ends", "convolutions", "8bit"),
+    ("percentile", "ends", "convolutions", "8bit"),
+    ("percentile", "none", "all", "7bit"),
 ]
+WEIGHTS = ("8bit", "7bit")
 
 
-def choice(text: str) -> tuple[str, str, str]:
-    """``METHOD:FP32_NODES:QUANTISED`` -> its three parts, each checked."""
+def choice(text: str) -> tuple[str, str, str, str]:
+    """``METHOD:FP32_NODES:QUANTISED:WEIGHTS`` -> its four parts, each checked."""
     parts = text.split(":")
-    if len(parts) != 3 or parts[0] not in METHODS or parts[1] not in KEEP or parts[2] not in OPS:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected METHOD:FP32_NODES:QUANTISED, e.g. percentile:ends:all")
-    return parts[0], parts[1], parts[2]
+    if (
+        len(parts) != 4
+        or parts[0] not in METHODS
+        or parts[1] not in KEEP
+        or parts[2] not in OPS
+        or parts[3] not in WEIGHTS
+    ):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected METHOD:FP32_NODES:QUANTISED:WEIGHTS, e.g. percentile:none:all:7bit"
+        )
+    return parts[0], parts[1], parts[2], parts[3]
 
 
 def score(version: Path, onnx_file: Path, test: DataSource, colour: ColourCamera | None) -> dict:
     """δ1 and REL of one graph of a version, run as the service runs it (at the card's camera size)."""
     card = load_card(version)
     runner = OnnxGenerator(onnx_file, card.input_multiple)
-    size = (card.camera.width, card.camera.height)
-
-    def predict(rgb: np.ndarray) -> np.ndarray:
-        from PIL import Image
-
-        shown = rgb if rgb.shape[1::-1] == size else np.asarray(Image.fromarray(rgb).resize(size))
-        depth = card.depth_encoding.decode(runner.predict_raw(shown))
-        if depth.shape != rgb.shape[:2]:
-            depth = np.asarray(Image.fromarray(depth).resize(rgb.shape[1::-1]))
-        return depth
-
+    predict = Predictor(lambda rgb: card.depth_encoding.decode(runner.predict_raw(rgb)), card.camera, onnx_file.name)
     result, _, _ = evaluate_frames(predict, open_source(test), min_m=0.1, max_m=10.0, colour_camera=colour)
     return {"delta1": result["delta1"], "rel": result["rel"]}
 
@@ -92,7 +93,9 @@ def generator_ms(files: list[Path], multiple: int, repeats: int) -> list[float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--site-model", type=Path, required=True, help="a fitted version folder (its fit.json beside)")
-    parser.add_argument("--choices", nargs="+", type=choice, default=CHOICES, help="METHOD:FP32_NODES:QUANTISED")
+    parser.add_argument(
+        "--choices", nargs="+", type=choice, default=CHOICES, help="METHOD:FP32_NODES:QUANTISED:WEIGHTS"
+    )
     parser.add_argument("--frames", type=int, default=20, help="calibration frames per model")
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--markdown", type=Path)
@@ -107,21 +110,23 @@ def main() -> None:
         "kitchen 0.8.1 (test 850-999, colour camera)": (KITCHEN, KITCHEN_TEST, KITCHEN_COLOUR),
         f"{site_card.name} (held out)": (args.site_model, holdout, None),
     }
-    choices: list[tuple[str, str | None, str, str]] = [("fp32", None, "", "")] + [
-        (f"int8: {method}, fp32 nodes {keep}, quantised {ops}", method, keep, ops) for method, keep, ops in args.choices
+    choices: list[tuple[str, str | None, str, str, str]] = [("fp32", None, "", "", "")] + [
+        (f"int8: {method}, fp32 nodes {keep}, quantised {ops}, {bits} weights", method, keep, ops, bits)
+        for method, keep, ops, bits in args.choices
     ]
     rows: dict[str, list[str]] = {label: [] for label, *_ in choices}
     with tempfile.TemporaryDirectory() as tmp:
         for index, (model_label, (version, test, colour)) in enumerate(models.items()):
             card = load_card(version)
             readers = [open_source(DataSource.model_validate(s)) for s in card.training.config["data"]["train"]]
-            photos = calibration_frames(spread_photos(readers, args.frames), card.camera.width, card.camera.height)
+            photos = calibration_frames(readers, args.frames, card.camera)
             files = []
-            for label, method, keep, ops in choices:
+            for label, method, keep, ops, bits in choices:
                 path = version / ONNX_FILE
                 if method:
-                    path = Path(tmp) / f"{index}-{method}-{keep}-{ops}.onnx"
-                    quantize_generator(version / ONNX_FILE, path, photos, card.input_multiple, method, keep, ops)
+                    path = Path(tmp) / f"{index}-{method}-{keep}-{ops}-{bits}.onnx"
+                    seven = bits == "7bit"
+                    quantize_generator(version / ONNX_FILE, path, photos, card.input_multiple, method, keep, ops, seven)
                 files.append(path)
                 scores = score(version, path, test, colour)
                 rows[label].append(f"{scores['delta1']:.3f} / {scores['rel']:.3f}")

@@ -21,7 +21,7 @@ import torch
 
 from contract.card import load_card
 from trainer.config import RunConfig, migrate_config
-from trainer.gan import Precision, build_networks, gan_step
+from trainer.gan import Autocast, build_networks, gan_step
 from trainer.losses import GANLoss
 from trainer.machine import SPEED_FLAGS, cpu_description, cpu_flags
 
@@ -55,7 +55,7 @@ def stepper(config: RunConfig, bf16: bool, channels_last: bool, adversarial: boo
     memory = torch.channels_last if channels_last else torch.contiguous_format
     generator.to(memory_format=memory)
     discriminator.to(memory_format=memory)
-    precision = Precision(bf16, torch.bfloat16)
+    precision = Autocast(bf16, torch.bfloat16)
     scaler = torch.amp.GradScaler("cpu", enabled=False)
     gan_loss = GANLoss(config.loss.gan_mode)
 

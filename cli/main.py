@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from trainer.data.frames import DEFAULT_MAX_FRAMES  # numpy and PIL only: the serving install has them
+
 if TYPE_CHECKING:
     from contract.geometry import ColourCamera
 
@@ -125,16 +127,20 @@ def export(
     precision: PrecisionOption = "fp32",
 ) -> None:
     """Export ONNX + TorchScript (and int8 ONNX), check parity with eager PyTorch, publish a version."""
+    from app.settings import Settings
     from contract.card import load_card
-    from contract.registries import user_registry
+    from contract.registries import Registries
     from contract.spec import parse_inference_options
     from trainer.export import export_and_publish, metrics_from_report
 
+    settings = Settings()
+    registry = registry or settings.registry
+    Registries(settings.registry, settings.bundled_registry).check_new_name(name, registry)
     changes = parse_inference_options(inference)
     scores = [metrics_from_report(path) for path in metrics]
     target = export_and_publish(
         checkpoint,
-        registry or user_registry(),
+        registry,
         name,
         version,
         scores,
@@ -211,6 +217,14 @@ def fit(
     max_gap_ms: MaxGapMs = 20.0,
     min_confidence: MinConfidence = 2,
     every: Annotated[int, typer.Option(help="keep every Nth pair of a long recording", min=1)] = 1,
+    max_frames: Annotated[
+        int,
+        typer.Option(
+            help="keep at most this many pairs, evenly spread, and write only those (0: all); "
+            "the default is about what a 30-minute CPU fit can use",
+            min=0,
+        ),
+    ] = DEFAULT_MAX_FRAMES,
     register: Register = "auto",
     out: Annotated[Path | None, typer.Option(help="run folder (default runs/fit/NAME)")] = None,
     resume: Annotated[bool, typer.Option(help="continue an interrupted fit from its last checkpoint")] = False,
@@ -220,25 +234,33 @@ def fit(
 ) -> None:
     """Fit a model of your space from a short RGB-D recording, score it honestly, and publish it."""
     from app.client import service_url
-    from contract.registries import user_registry
+    from app.settings import Settings
     from trainer.data.folders import CameraFile
     from trainer.data.formats import ReadOptions
-    from trainer.fit.workflow import FitOptions
+    from trainer.fit.workflow import FitOptions, interrupted_hint
     from trainer.fit.workflow import fit as run
 
     if register not in ("auto", "yes", "no"):
         raise typer.BadParameter(f"--register {register!r}: expected auto, yes or no")
+    settings = Settings()
     options = FitOptions(
         data=data,
         name=name,
         licence=licence,
-        service_url=service_url(),
+        service_url=service_url(settings),
         budget_min=budget,
         start_from=from_,
-        registry=registry or user_registry(),
+        registry=registry or settings.registry,
+        bundled=settings.bundled_registry,
         format=format,
         read=ReadOptions(
-            CameraFile(fx, fy, cx, cy, depth_scale), color_topic, depth_topic, max_gap_ms / 1000, min_confidence, every
+            CameraFile(fx, fy, cx, cy, depth_scale),
+            color_topic,
+            depth_topic,
+            max_gap_ms / 1000,
+            min_confidence,
+            every,
+            max_frames or None,
         ),
         holdout=holdout,
         gap_frames=gap,
@@ -252,7 +274,7 @@ def fit(
     try:
         run(options, typer.echo)
     except KeyboardInterrupt:
-        typer.echo("interrupted: the same command with --resume continues from the last checkpoint", err=True)
+        typer.echo(interrupted_hint(options.run_dir), err=True)
         raise typer.Exit(130) from None
 
 

@@ -16,6 +16,7 @@ target and renames it into place, refusing if the version already exists.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import hashlib
 import json
@@ -38,6 +39,8 @@ CARD_FILE = "card.json"
 ONNX_FILE = "generator.onnx"
 TORCHSCRIPT_FILE = "generator.torchscript.pt"
 INT8_ONNX_FILE = "generator.int8.onnx"
+#: The photo int8 and fp32 depth are compared on wherever an int8 version loads.
+INT8_SAMPLE_FILE = "int8-sample.png"
 SEMVER = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)(?:-([0-9A-Za-z.-]+))?$")
 NAME = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
 SCHEMA_VERSION = 4
@@ -142,6 +145,11 @@ class Int8Graph(BaseModel):
     frames_from: list[str] = Field(description="the training data they were spread over")
     fp32_nodes: list[str] = Field(description="nodes left in fp32 (the precision-sensitive ends)")
     parity: dict[str, float] = Field(description="int8 against fp32 depth on the parity image; see trainer.quantize")
+    sample: str | None = Field(
+        None,
+        description="the parity photo at the card camera's size, among the card's files: wherever the version "
+        "loads, int8 and fp32 depth are compared on it again (a CPU whose int8 arithmetic differs is caught there)",
+    )
 
 
 class Training(BaseModel):
@@ -303,6 +311,7 @@ def publish(registry: Path, card: ModelCard, files: dict[str, Path]) -> Path:
     target = Path(registry) / card.name / card.version
     if target.exists():
         raise FileExistsError(f"{target} already exists: versions are immutable, publish a new one")
+    created = not target.parent.exists()
     target.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{card.version}.", dir=target.parent))
     try:
@@ -318,5 +327,8 @@ def publish(registry: Path, card: ModelCard, files: dict[str, Path]) -> Path:
         os.rename(staging, target)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
+        if created:  # a failed first version leaves no empty name folder behind
+            with contextlib.suppress(OSError):
+                target.parent.rmdir()
         raise
     return target

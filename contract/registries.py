@@ -4,7 +4,8 @@
 by default is a data folder outside any checkout, so following the README never writes
 into tracked files. The models shipped with rgb2cloud stay in the bundled registry
 (``RGB2CLOUD_BUNDLED_REGISTRY``, the checkout's or image's ``weights/``) and are served
-beside the user's: the service and ``fit`` read the same two settings.
+beside the user's: the service, ``fit`` and ``export`` read the same two settings
+(``app.settings.Settings``, the one reader of ``RGB2CLOUD_*``).
 
 A name lives in one registry: where both hold it (a copy of the bundled models mounted
 as the user's registry), the user's is the one served.
@@ -17,9 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from contract.card import list_versions
-
-REGISTRY_VARIABLE = "RGB2CLOUD_REGISTRY"
-BUNDLED_VARIABLE = "RGB2CLOUD_BUNDLED_REGISTRY"
+from contract.errors import UserError
 
 
 def default_registry() -> Path:
@@ -31,16 +30,6 @@ def default_registry() -> Path:
 def checkout_weights() -> Path:
     """The ``weights/`` folder beside this package: the bundled registry of a checkout or the image."""
     return Path(__file__).resolve().parents[1] / "weights"
-
-
-def user_registry() -> Path:
-    """Where fit and export publish: ``$RGB2CLOUD_REGISTRY``, else ``default_registry()``."""
-    return Path(os.environ.get(REGISTRY_VARIABLE) or default_registry())
-
-
-def bundled_registry() -> Path:
-    """The registry shipped with rgb2cloud: ``$RGB2CLOUD_BUNDLED_REGISTRY``, else ``checkout_weights()``."""
-    return Path(os.environ.get(BUNDLED_VARIABLE) or checkout_weights())
 
 
 def registry_models(registry: Path) -> dict[str, list[str]]:
@@ -58,6 +47,14 @@ class Registries:
     own: Path
     bundled: Path
 
+    def owner(self, name: str) -> Path | None:
+        """The registry that owns ``name``: the user's where it holds a published version of it, else the
+        bundled one where that does, else None. The one rule: an empty or half-written folder owns nothing."""
+        for registry in (Path(self.own), Path(self.bundled)):
+            if list_versions(registry, name):
+                return registry
+        return None
+
     def models(self) -> dict[str, list[str]]:
         """Every servable name with its versions, oldest first: the bundled models, then the user's over them."""
         merged = registry_models(self.bundled)
@@ -65,9 +62,15 @@ class Registries:
         return dict(sorted(merged.items()))
 
     def folder(self, name: str, version: str) -> Path:
-        """The version folder of ``name`` ``version``, in the registry that holds the name."""
-        own = Path(self.own) / name
-        return (own if own.is_dir() else Path(self.bundled) / name) / version
+        """The version folder of ``name`` ``version``, in the registry that owns the name (the user's if none)."""
+        return (self.owner(name) or Path(self.own)) / name / version
+
+    def check_new_name(self, name: str, registry: Path) -> None:
+        """Refuse to publish ``name`` into ``registry`` when the bundled registry owns it: the service would serve
+        the user's versions in the bundled model's place (publishing into the bundled registry itself is fine)."""
+        bundled = Path(self.bundled)
+        if list_versions(bundled, name) and Path(registry).resolve() != bundled.resolve():
+            raise UserError(f"--name {name}: a bundled model has this name ({bundled / name}); choose another")
 
     def bundled_default(self) -> str | None:
         """The bundled registry's model when it holds exactly one: the default when none is named."""

@@ -21,6 +21,19 @@ from contract.geometry import pad_to_multiple
 
 #: The graphs a version can ship: fp32 always, int8 beside it when exported with ``--precision int8``.
 Precision = Literal["fp32", "int8"]
+#: The share of pixels whose int8 depth must be within 1.25x of the fp32 depth (δ1 with fp32 as the truth):
+#: at export on the parity photo, and again wherever a version loads, on the sample it ships.
+INT8_AGREEMENT = 0.95
+
+
+def int8_agreement(reference: np.ndarray, depth: np.ndarray) -> dict[str, float]:
+    """How far int8 depth is from fp32 depth: ``agreement`` (the share within 1.25x) and ``median_rel``."""
+    valid = (reference > 0) & (depth > 0)
+    if not valid.any():
+        return {"agreement": 0.0, "median_rel": 1.0}
+    ratio = np.maximum(depth[valid] / reference[valid], reference[valid] / depth[valid])
+    median_rel = float(np.median(np.abs(depth[valid] - reference[valid]) / reference[valid]))
+    return {"agreement": float((ratio < 1.25).mean()), "median_rel": median_rel}
 
 
 class ExportedGenerator(Protocol):

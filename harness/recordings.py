@@ -78,24 +78,63 @@ class BagWriter:
         self.write(topic, "sensor_msgs/msg/CompressedImage", t, message)
         return buffer.getvalue()
 
-    def camera_info(self, topic: str, t: float, k: Intrinsics, frame: str = "camera") -> None:
+    def camera_info(
+        self,
+        topic: str,
+        t: float,
+        k: Intrinsics,
+        frame: str = "camera",
+        *,
+        distortion: tuple[str, tuple[float, ...]] = ("plumb_bob", (0.0,) * 5),
+        size: tuple[int, int] | None = None,
+        uncalibrated: bool = False,
+    ) -> None:
+        """A CameraInfo for ``k``: ``distortion`` (model, D), another ``size`` than ``k``'s, or K all zeros."""
         types = self.store.types
-        matrix = np.array([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1], np.float64)
+        matrix = np.array([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1], np.float64) * (0.0 if uncalibrated else 1.0)
         roi = types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-        fields = {"D": np.zeros(5), "K": matrix, "R": np.eye(3).ravel(), "P": np.zeros(12)}
+        model, coefficients = distortion
+        fields = {"D": np.asarray(coefficients, np.float64), "K": matrix, "R": np.eye(3).ravel(), "P": np.zeros(12)}
         if not self.ros1:
             fields = {key.lower(): value for key, value in fields.items()}
+        width, height = size or (k.width, k.height)
         message = types["sensor_msgs/msg/CameraInfo"](
             header=self._header(t, frame),
-            height=k.height,
-            width=k.width,
-            distortion_model="plumb_bob",
+            height=height,
+            width=width,
+            distortion_model=model,
             binning_x=0,
             binning_y=0,
             roi=roi,
             **fields,
         )
         self.write(topic, "sensor_msgs/msg/CameraInfo", t, message)
+
+    def compressed_depth(self, topic: str, t: float, metres: np.ndarray, encoding: str) -> None:
+        """Depth as image_transport's compressedDepth plugin publishes it: a 12-byte ``ConfigHeader``, then a PNG.
+
+        ``16UC1``: the PNG holds millimetres. ``32FC1``: it holds quantised inverse depth with the plugin's
+        defaults (depth_quantization 100, depth_max 10 m): A = 100 x 101, B = 1 - A / 10, v = A / d + B.
+        """
+        import struct
+
+        if encoding == "16UC1":
+            values, a, b = np.clip(np.rint(metres * 1000), 0, 65535).astype(np.uint16), 0.0, 0.0
+        else:
+            a = 100.0 * 101.0
+            b = 1.0 - a / 10.0
+            with np.errstate(divide="ignore"):
+                inverse = np.where(metres > 0, a / np.maximum(metres, 1e-6) + b, 0.0)
+            values = np.clip(np.rint(inverse), 0, 65535).astype(np.uint16)
+        png = io.BytesIO()
+        Image.fromarray(values).save(png, format="PNG")
+        data = struct.pack("<iff", 0, a, b) + png.getvalue()
+        message = self.store.types["sensor_msgs/msg/CompressedImage"](
+            header=self._header(t, "camera"),
+            format=f"{encoding}; compressedDepth png",
+            data=np.frombuffer(data, np.uint8),
+        )
+        self.write(topic, "sensor_msgs/msg/CompressedImage", t, message)
 
     def tf_static(self, t: float, parent: str, child: str, translation: tuple[float, float, float]) -> None:
         types = self.store.types
@@ -109,9 +148,14 @@ class BagWriter:
         self.write("/tf_static", "tf2_msgs/msg/TFMessage", t, types["tf2_msgs/msg/TFMessage"](transforms=[stamped]))
 
 
-def write_aligned_bag(path: Path, kind: str, frames, colour: str = "rgb8", depth: str = "16UC1") -> Path:
-    """A realsense-ros style recording: colour, depth aligned to colour, a CameraInfo each; 30 fps, 3 ms apart."""
-    k = MOSD_CAMERA.resized(frames[0][0].shape[1], frames[0][0].shape[0])
+def write_aligned_bag(
+    path: Path, kind: str, frames, colour: str = "rgb8", depth: str = "16UC1", info: Intrinsics | None = None
+) -> Path:
+    """A realsense-ros style recording: colour, depth aligned to colour, a CameraInfo each; 30 fps, 3 ms apart.
+
+    The CameraInfo is mOSD's camera at the frames' size, or ``info`` (a driver's camera of another size).
+    """
+    k = info or MOSD_CAMERA.resized(frames[0][0].shape[1], frames[0][0].shape[0])
     with BagWriter(path, kind) as bag:
         for i, (rgb, mm) in enumerate(frames):
             t = 100.0 + i / 30

@@ -7,6 +7,7 @@ verified, warmed model, and stops the process however the block is left.
 
 from __future__ import annotations
 
+import io
 import os
 import socket
 import subprocess
@@ -18,6 +19,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
+import numpy as np
+from PIL import Image
+
+from contract.geometry import Intrinsics
 
 #: The folder the child starts in, so a relative RGB2CLOUD_REGISTRY means what it does for ``make serve``.
 REPO = Path(__file__).resolve().parents[1]
@@ -125,3 +130,27 @@ def server_timing(response: httpx.Response) -> dict[str, float]:
         name, duration = entry.strip().split(";dur=")
         stages[name] = float(duration)
     return stages
+
+
+class ServedDepth:
+    """The service's ``/depth`` as a predictor: a photo (lossless PNG) and its camera in, metres out.
+
+    It has the shape of the trainer's frame predictors (``predict(rgb, intrinsics)``), so a service is
+    scored by the same code that scores a model in process (``trainer.evaluate.evaluate_frames``). The
+    depth PNG is millimetres: a served score differs from an in-process one by that rounding alone.
+    ``focal_ratios`` collects the ``X-Focal-Ratio`` values seen.
+    """
+
+    def __init__(self, url: str, model: str):
+        self.url, self.model = url, model
+        self.focal_ratios: set[str] = set()
+
+    def __call__(self, rgb: np.ndarray, camera: Intrinsics) -> np.ndarray:
+        photo = io.BytesIO()
+        Image.fromarray(rgb).save(photo, format="PNG")
+        params = {"model": self.model, "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy}
+        r = httpx.post(f"{self.url}/depth", files={"image": photo.getvalue()}, params=params, timeout=120)
+        r.raise_for_status()
+        self.focal_ratios.add(r.headers["x-focal-ratio"])
+        with Image.open(io.BytesIO(r.content)) as im:
+            return np.asarray(im, dtype=np.float32) / 1000.0

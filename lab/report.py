@@ -20,11 +20,8 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-
-import numpy as np
 
 from contract.card import PAPER_METRICS, ModelCard, load_card
 from contract.errors import UserError
@@ -38,7 +35,7 @@ from trainer.baselines import fit_baselines, score_baselines
 from trainer.config import complete_config, load_config
 from trainer.data.manifest import ManifestReader
 from trainer.data.sevenscenes import SevenScenesReader
-from trainer.evaluate import PAPER_TUM, beats, evaluate_frames, load_predictor, markdown_table
+from trainer.evaluate import PAPER_TUM, FramePredict, beats, evaluate_frames, load_predictor, markdown_table
 from trainer.visualize import plot_pc_curve, sample_grid
 
 #: The paper's mean point-cloud RMSE on NYU (on TUM it is PAPER_TUM["pc_rmse_mean"]).
@@ -95,7 +92,7 @@ def colour_camera_of(config: dict, root: Path) -> ColourCamera | None:
 
 
 def _score(
-    predict: Callable[[np.ndarray], np.ndarray],
+    predict: FramePredict,
     frames,
     inputs: ReportInputs,
     samples: int = 0,
@@ -121,7 +118,7 @@ def _compared(
     split = f"{inputs.root.name} {inputs.test_frames}"
     if is_record(path):
         return read_record(path, split, inputs.min_m, inputs.max_m, str(inputs.unseen))
-    predict, _ = load_predictor(path)
+    predict = load_predictor(path)
     config = training_config(path)
     result, images, _ = _score(predict, test, inputs, colour=colour_camera_of(config, inputs.root))
     record = ScoreRecord(
@@ -196,7 +193,8 @@ def build_report(inputs: ReportInputs) -> Path:
     figures, local = out / "quality", out / "quality" / "local"
     local.mkdir(parents=True, exist_ok=True)
     card = load_card(inputs.model)
-    predict, label = load_predictor(inputs.model)
+    predict = load_predictor(inputs.model)
+    label = predict.label
     test = SevenScenesReader(inputs.root, inputs.test_frames)
     base_config = training_config(inputs.model)
     colour = colour_camera_of(base_config, inputs.root)
@@ -220,7 +218,7 @@ def build_report(inputs: ReportInputs) -> Path:
     plot_pc_curve(curves, figures / "pc_rmse_curve.png")
     sample_grid(grid).save(local / "7scenes-samples.png")
     middle = test[len(test) // 2]
-    render_pair(predict(middle.rgb), middle, colour).save(local / "7scenes-pointcloud.png")
+    render_pair(predict(middle.rgb, middle.intrinsics), middle, colour).save(local / "7scenes-pointcloud.png")
     unseen_result, _, unseen_grid = _score(predict, unseen, inputs, samples=1, scaled=True)
     sample_grid(unseen_grid).save(local / "unseen-sample.png")
     render_pair(unseen_grid[0][1], unseen[0]).save(local / "unseen-pointcloud.png")

@@ -16,9 +16,10 @@ import pytest
 from conftest import REPO, SEVEN_SCENES
 from PIL import ExifTags, Image
 
-from app.camera import FILM_DIAGONAL_MM, CameraQuery, exif_focal, generator_size, photo_camera
+from app.camera import FILM_DIAGONAL_MM, CameraQuery, exif_focal, photo_camera
 from contract.card import load_card
 from contract.geometry import Intrinsics
+from contract.resample import generator_size
 from harness.service import BUNDLED_REGISTRY, running_service
 from trainer.data.frames import read_depth_png
 from trainer.metrics import MetricAccumulator
@@ -106,12 +107,12 @@ def test_the_focal_length_comes_from_the_query_then_exif_then_the_model():
 
 def test_the_generator_sees_the_photo_at_the_model_focal_length_within_the_pixel_bound():
     photo = Intrinsics(795.0, 795.0, 320, 240, 640, 480)  # 1.5x the model's focal length
-    assert generator_size(photo, KITCHEN, 10**7) == (427, 320)
-    assert generator_size(Intrinsics(265, 265, 0, 0, 320, 240), KITCHEN, 10**7) == (640, 480)  # small: enlarged
+    assert generator_size(photo, KITCHEN, 10**7) == ((427, 320), 1.0)
+    assert generator_size(Intrinsics(265, 265, 0, 0, 320, 240), KITCHEN, 10**7)[0] == (640, 480)  # small: enlarged
     wide = Intrinsics(0.01, 0.01, 0, 0, 4000, 3000)  # absurd but finite: bounded by the pixel limit
-    width, height = generator_size(wide, KITCHEN, 1280 * 960)
-    assert width * height <= 1280 * 960 and width / height == pytest.approx(4 / 3, rel=0.01)
-    assert generator_size(Intrinsics(1e7, 1e7, 0, 0, 1, 3000), KITCHEN, 10**6) == (1, 1)
+    (width, height), ratio = generator_size(wide, KITCHEN, 1280 * 960)
+    assert ratio < 1 and width * height <= 1280 * 960 and width / height == pytest.approx(4 / 3, rel=0.01)
+    assert generator_size(Intrinsics(1e7, 1e7, 0, 0, 1, 3000), KITCHEN, 10**6)[0] == (1, 1)
 
 
 def test_exif_focal_length_from_the_focal_plane_or_35mm_equivalent_and_turned_with_the_photo():

@@ -21,7 +21,7 @@ def test_median_scaling_diagnostic_separates_one_wrong_distance_from_a_wrong_sha
     ]
     truth = {0: frames[0].depth, 1: frames[1].depth}
 
-    def too_far(rgb: np.ndarray) -> np.ndarray:
+    def too_far(rgb: np.ndarray, camera: Intrinsics) -> np.ndarray:
         return np.where(truth[int(rgb[0, 0, 0])] > 0, truth[int(rgb[0, 0, 0])] * 1.25, 5.0)
 
     scaled = MedianScaled(0.1, 10.0)
@@ -43,7 +43,7 @@ def test_where_fails_splits_a_blurred_step_from_a_wrong_surface():
     pred[0, 0] = 2.0  # a wrong surface, far from the step
     pred[0, 10] = 7.0  # not counted: no ground truth
     frame = Frame(np.zeros((1, 11, 3), np.uint8), gt, Intrinsics(1, 1, 0, 0, 11, 1), "step")
-    result, _, _ = evaluate_frames(lambda rgb: pred, [frame], min_m=0.1, max_m=10.0, diagnostics=[WhereFails()])
+    result, _, _ = evaluate_frames(lambda rgb, k: pred, [frame], min_m=0.1, max_m=10.0, diagnostics=[WhereFails()])
     # within 3 px of both sides of the step: pixels 2-7, 6 of the 10 valid ones
     assert result["where_fails"] == pytest.approx(
         {
@@ -55,7 +55,7 @@ def test_where_fails_splits_a_blurred_step_from_a_wrong_surface():
     )
     assert result["delta1"] == pytest.approx(0.7)
     assert "60.0% of valid pixels" in where_fails_line(result["where_fails"])
-    plain, _, _ = evaluate_frames(lambda rgb: pred, [frame], min_m=0.1, max_m=10.0)
+    plain, _, _ = evaluate_frames(lambda rgb, k: pred, [frame], min_m=0.1, max_m=10.0)
     assert "where_fails" not in plain
 
 

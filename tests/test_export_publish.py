@@ -240,3 +240,15 @@ print("ok")
 """
     result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)
     assert result.returncode == 0 and result.stdout.strip() == "ok", result.stderr
+
+
+def test_export_refuses_a_bundled_models_name_as_fit_does(trained_checkpoint, tmp_path):
+    """The user's version would shadow the bundled model the service and fit rely on."""
+    metrics = tmp_path / "metrics.json"
+    metrics.write_text("{}")
+    args = export_args(trained_checkpoint, metrics, tmp_path / "registry")
+    args[args.index("--name") + 1] = "rgb2cloud-7scenes"
+    result = subprocess.run([sys.executable, "-m", "cli", *args], cwd=REPO, capture_output=True, text=True)
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert result.stderr.startswith("error: --name rgb2cloud-7scenes: a bundled model has this name")
+    assert not (tmp_path / "registry").exists()

@@ -18,10 +18,12 @@ from PIL import Image
 
 from contract.card import load_card
 from contract.runtime import OnnxGenerator
-from harness.service import running_service
+from harness.service import ServedDepth, running_service
 from trainer.checkpoint import load_generator_weights
+from trainer.config import DataSource
 from trainer.data.folders import CameraFile, find_pairs, read_intrinsics_json
-from trainer.data.formats import ReadOptions, detect_format, open_recording
+from trainer.data.formats import ReadOptions, detect_format, open_recording, open_source
+from trainer.evaluate import evaluate_frames, load_predictor
 from trainer.fit.budget import Plan, Workload, plan_training
 from trainer.fit.split import split_recording
 from trainer.inference import EagerGenerator, InferenceGraph
@@ -137,7 +139,18 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
     # The exact commands to serve it, and the service does.
     assert f"RGB2CLOUD_REGISTRY={own} RGB2CLOUD_MODEL=my-room:0.1.0 make serve" in stdout
     assert "/depth?model=my-room:0.1.0" in stdout
-    with running_service(registry=str(own), model="my-room:0.1.0") as service:
+    holdout = open_source(DataSource(format="csv", root=tmp_path / "run" / "holdout.csv"))
+    frames = [holdout[i] for i in range(len(holdout))]
+    with running_service(registry=str(own), bundled_registry=str(registry), model="my-room:0.1.0") as service:
+        # One rescale rule: each model is scored at its own card camera, the start's zero-shot row included,
+        # so fit's table, evaluate and the service (given the recording's focal length) agree.
+        for row, version in zip(card.metrics[:2], (folder, start), strict=True):
+            low, high = row.depth_range_m
+            evaluated, _, _ = evaluate_frames(load_predictor(version), frames, min_m=low, max_m=high)
+            served_depth = ServedDepth(service.url, f"{load_card(version).name}:0.1.0")
+            served, _, _ = evaluate_frames(served_depth, frames, min_m=low, max_m=high)
+            assert abs(evaluated["delta1"] - row.delta1) <= 0.001 and abs(evaluated["rel"] - row.rel) <= 0.001
+            assert abs(served["delta1"] - row.delta1) <= 0.001 and abs(served["rel"] - row.rel) <= 0.002
         photo = next((data / "color").iterdir()).read_bytes()
         response = httpx.post(f"{service.url}/depth", files={"image": photo}, timeout=30)
         assert response.status_code == 200 and response.headers["x-model-version"] == "0.1.0"
@@ -176,6 +189,31 @@ def tick_then_interrupt(self, *step):
 workflow.Progress.tick = tick_then_interrupt
 main()
 """
+
+
+@pytest.mark.slow
+def test_ctrl_c_before_the_first_checkpoint_is_continued_by_the_hint_it_prints(registry, tmp_path):
+    """Ctrl-C after fit.json is written but before any checkpoint: the printed hint, followed, finishes the fit."""
+    data = write_recording(tmp_path / "rec", 24, open3d=False)
+    args = [*fit_args(data, tmp_path, registry / "tiny" / "0.1.0"), "--steps", "8"]
+    # The first training step interrupts: fit.json exists by then, and no checkpoint does.
+    command = [sys.executable, "-c", CTRL_C_AFTER_FIRST_CHECKPOINT, str(tmp_path / "run" / "fit.json"), *args]
+    interrupted = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert interrupted.returncode == 130 and "Traceback" not in interrupted.stderr, interrupted.stderr
+    assert not (tmp_path / "run" / "train" / "checkpoints" / "last.pt").exists()
+    hint = interrupted.stderr.strip().splitlines()[-1]
+    assert hint == "interrupted: the same command with --resume continues it"
+    result = run_cli(*args, "--resume")
+    assert "resuming before the first checkpoint: training all 8 steps from the start" in result.stdout
+    assert load_card(tmp_path / "registry" / "my-room" / "0.1.0").training.steps == 8
+
+
+def test_ctrl_c_before_training_hints_a_fresh_start(tmp_path):
+    from trainer.fit.workflow import interrupted_hint
+
+    assert "without --resume" in interrupted_hint(tmp_path)
+    (tmp_path / "fit.json").write_text("{}")
+    assert "with --resume" in interrupted_hint(tmp_path)
 
 
 @pytest.mark.slow

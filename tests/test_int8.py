@@ -15,13 +15,22 @@ import pytest
 from conftest import REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, export_args, run_cli
 from PIL import Image
 
-from contract.card import CARD_FILE, INT8_ONNX_FILE, ONNX_FILE, TORCHSCRIPT_FILE, load_card, publish, sha256_file
-from contract.runtime import OnnxGenerator
+from contract.card import (
+    CARD_FILE,
+    INT8_ONNX_FILE,
+    INT8_SAMPLE_FILE,
+    ONNX_FILE,
+    TORCHSCRIPT_FILE,
+    load_card,
+    publish,
+    sha256_file,
+)
+from contract.runtime import INT8_AGREEMENT, OnnxGenerator
 from harness.service import running_service
-from trainer.export import INT8_AGREEMENT
-from trainer.quantize import int8_parity
+from trainer.quantize import int8_parity, quantize_generator
 
 PHOTO = (TUM_FRAME / "TUM_color.png").read_bytes()
+INT8_FILES = (ONNX_FILE, TORCHSCRIPT_FILE, INT8_ONNX_FILE, INT8_SAMPLE_FILE)
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +48,10 @@ def test_export_writes_an_int8_graph_beside_the_fp32_one_and_the_card_says_how(i
     registry, stdout = int8_registry
     version = registry / "tiny" / "0.1.0"
     card = load_card(version)
-    assert set(card.files) == {ONNX_FILE, TORCHSCRIPT_FILE, INT8_ONNX_FILE}
+    assert set(card.files) == {ONNX_FILE, TORCHSCRIPT_FILE, INT8_ONNX_FILE, INT8_SAMPLE_FILE}
+    assert card.int8 is not None and card.int8.sample == INT8_SAMPLE_FILE
+    with Image.open(version / INT8_SAMPLE_FILE) as sample:  # the parity photo, at the card camera's size
+        assert sample.size == (card.camera.width, card.camera.height)
     for name, digest in card.files.items():
         assert sha256_file(version / name) == digest and f"{name}  sha256 {digest}" in stdout
     assert card.int8 is not None and card.int8.file == INT8_ONNX_FILE
@@ -56,6 +68,10 @@ def test_export_writes_an_int8_graph_beside_the_fp32_one_and_the_card_says_how(i
         dequantised = producers[node.input[1]]  # the weight comes through a DequantizeLinear of int8
         assert dequantised.op_type == "DequantizeLinear"
         assert weights[dequantised.input[0]].data_type == onnx.TensorProto.INT8
+        # 7-bit weights (reduce_range): |w| <= 64, so no pair of uint8 x int8 products (255 x 64 x 2 = 32,640)
+        # saturates the 16-bit sums of a CPU without VNNI.
+        values = onnx.numpy_helper.to_array(weights[dequantised.input[0]])
+        assert values.min() >= -64 and values.max() <= 64
     assert "parity int8: depth within 1.25x of fp32" in stdout
 
 
@@ -115,7 +131,7 @@ def both(int8_registry, registry, tmp_path):
     target = tmp_path / "weights"
     with_int8 = int8_registry[0] / "tiny" / "0.1.0"
     card = load_card(with_int8).model_copy(update={"name": "quant"})
-    publish(target, card, {f: with_int8 / f for f in (ONNX_FILE, TORCHSCRIPT_FILE, INT8_ONNX_FILE)})
+    publish(target, card, {f: with_int8 / f for f in INT8_FILES})
     plain = registry / "tiny" / "0.1.0"
     card = load_card(plain).model_copy(update={"name": "plain"})
     publish(target, card, {f: plain / f for f in (ONNX_FILE, TORCHSCRIPT_FILE)})
@@ -152,7 +168,7 @@ def test_the_service_serves_both_precisions_and_names_the_one_used(both):
 def test_a_version_whose_int8_file_does_not_match_its_card_is_refused(both):
     tampered = both / "quant" / "0.1.0"
     card = load_card(tampered).model_copy(update={"version": "0.2.0"})
-    files = {f: tampered / f for f in (ONNX_FILE, TORCHSCRIPT_FILE, INT8_ONNX_FILE)}
+    files = {f: tampered / f for f in INT8_FILES}
     broken = publish(both, card, files)
     int8_file = broken / INT8_ONNX_FILE
     int8_file.write_bytes(int8_file.read_bytes()[:-16])
@@ -164,3 +180,44 @@ def test_a_version_whose_int8_file_does_not_match_its_card_is_refused(both):
         # fp32 was not asked for either: the version is refused whole, and the one before keeps serving.
         assert depth(service.url, model="quant").headers["x-model-version"] == "0.1.0"
     assert (broken / CARD_FILE).is_file()
+
+
+def test_an_int8_graph_that_disagrees_with_fp32_where_it_loads_is_not_served(both, tmp_path):
+    """Export checked int8 on its own machine; every machine that loads the version checks again, on the sample
+    photo the version ships. An int8 graph whose integer arithmetic gives other depth (here: calibrated on black
+    frames, as a CPU that saturates would compute) is not served: asked for by name, 409; by default, fp32 with
+    the reason; and /v1/models lists fp32 alone for it."""
+    good = both / "quant" / "0.1.0"
+    card = load_card(good)
+    black = [np.zeros((card.camera.height, card.camera.width, 3), np.uint8)] * 4
+    broken = tmp_path / INT8_ONNX_FILE
+    quantize_generator(good / ONNX_FILE, broken, black, card.input_multiple, "minmax", "none")
+    files = {f: good / f for f in INT8_FILES} | {INT8_ONNX_FILE: broken}
+    publish(both, card.model_copy(update={"name": "saturating"}), files)
+    with running_service(registry=str(both), model="saturating", threads="1", precision="int8") as service:
+        asked = depth(service.url, precision="int8")
+        assert asked.status_code == 409
+        assert "its int8 graph disagrees with fp32 on this machine" in asked.json()["detail"]
+        fallback = depth(service.url)
+        assert fallback.status_code == 200 and fallback.headers["x-precision"] == "fp32"
+        assert fallback.headers["x-precision-fallback"].startswith("int8 asked for; its int8 graph disagrees")
+        listed = {m["name"]: m["versions"][0]["card"]["precisions"] for m in models(service.url)}
+        assert listed["saturating"] == ["fp32"] and listed["quant"] == ["fp32", "int8"]
+        assert depth(service.url, model="quant", precision="int8").headers["x-precision"] == "int8"
+
+
+def test_cors_exposes_the_precision_headers(both):
+    with running_service(registry=str(both), model="plain", threads="1", cors_origins='["http://example.test"]') as s:
+        r = httpx.post(
+            f"{s.url}/depth",
+            files={"image": ("p.png", PHOTO)},
+            params={"precision": "int8"},
+            headers={"Origin": "http://example.test"},
+            timeout=60,
+        )
+        exposed = {h.strip().lower() for h in r.headers["access-control-expose-headers"].split(",")}
+        assert {"x-precision", "x-precision-fallback"} <= exposed
+
+
+def models(url: str) -> list[dict]:
+    return httpx.get(f"{url}/v1/models", timeout=10).json()["models"]

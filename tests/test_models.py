@@ -15,6 +15,8 @@ from conftest import TUM_FRAME
 from PIL import Image
 
 from contract.card import CARD_FILE, ONNX_FILE, TORCHSCRIPT_FILE, load_card, publish
+from contract.errors import UserError
+from contract.registries import Registries
 from harness.service import running_service
 
 PHOTO = (TUM_FRAME / "TUM_color.png").read_bytes()
@@ -176,3 +178,24 @@ def test_the_bundled_registry_is_served_beside_the_users_and_is_the_default(regi
     with running_service(registry=str(own), bundled_registry=str(bundled), threads="1") as service:
         assert depth(service.url).headers["x-model-name"] == "kitchen"  # the bundled one, not the only own model
         assert depth(service.url, "my-room").status_code == 200
+
+
+def test_one_rule_says_which_registry_owns_a_name_and_an_empty_folder_owns_nothing(registry, tmp_path):
+    bundled, own = tmp_path / "bundled", tmp_path / "own"
+    publish_copy(registry / "tiny" / "0.1.0", bundled, "kitchen", "1.0.0")
+    (own / "kitchen").mkdir(parents=True)  # what a failed publish once left behind
+    registries = Registries(own, bundled)
+    assert registries.owner("kitchen") == bundled and registries.folder("kitchen", "1.0.0").is_dir()
+    assert registries.owner("office") is None
+    publish_copy(registry / "tiny" / "0.1.0", own, "kitchen", "2.0.0")
+    assert registries.owner("kitchen") == own
+    with pytest.raises(UserError, match="a bundled model has this name"):
+        Registries(own, bundled).check_new_name("kitchen", own)
+    Registries(own, bundled).check_new_name("kitchen", bundled)  # publishing into the bundled registry itself
+
+
+def test_a_failed_first_publish_leaves_no_folder_that_would_hide_a_bundled_model(registry, tmp_path):
+    card = load_card(registry / "tiny" / "0.1.0").model_copy(update={"name": "kitchen"})
+    with pytest.raises(FileNotFoundError):
+        publish(tmp_path / "own", card, {ONNX_FILE: tmp_path / "missing.onnx"})
+    assert not (tmp_path / "own" / "kitchen").exists()

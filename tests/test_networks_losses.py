@@ -157,7 +157,7 @@ def test_without_adversarial_terms_the_discriminator_is_never_run(tmp_path):
     from conftest import tiny_config
 
     from trainer.config import LossConfig, RunConfig
-    from trainer.gan import Precision, build_networks, gan_step
+    from trainer.gan import Autocast, build_networks, gan_step
 
     config = RunConfig.model_validate(tiny_config(tmp_path))
     generator, discriminator, opt_g, opt_d = build_networks(config, torch.device("cpu"))
@@ -175,7 +175,7 @@ def test_without_adversarial_terms_the_discriminator_is_never_run(tmp_path):
         GANLoss("lsgan"),
         loss,
         batch,
-        Precision(False, torch.bfloat16),
+        Autocast(False, torch.bfloat16),
     )
     assert set(losses) == {"G_l1"}
     assert all(torch.equal(a, b) for a, b in zip(before, discriminator.parameters(), strict=True))

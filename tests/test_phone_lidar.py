@@ -12,6 +12,7 @@ from contract.card import load_card
 from contract.errors import UserError
 from contract.geometry import ColourCamera, Intrinsics
 from harness.recordings import MOSD_CAMERA, write_record3d, write_stray_scanner
+from trainer.data.folders import CameraFile
 from trainer.data.formats import ReadOptions, detect_format, open_recording
 from trainer.data.frames import Frame
 from trainer.data.record3d import read_record3d
@@ -71,7 +72,8 @@ def test_a_written_export_reads_back_as_its_frames(tmp_path, frame_column):
     recording = open_recording(root, None, ReadOptions(), tmp_path / "run")
     assert [p.name for p in recording.pairs] == [f"{100 + i / 30:.6f}" for i in range(5)]
     assert recording.notes[0].startswith("stray scanner: 5 depth maps, video 640x480 written at 640x480")
-    assert "confidence 2 and up kept" in recording.notes[1]
+    assert recording.notes[1] == "kept 5 of 5 frames: every frame"
+    assert "confidence 2 and up kept" in recording.notes[2]
     first = recording.pairs[0]
     assert (first.camera.fx, first.camera.cx, first.depth_scale) == (525.0, 319.5, 1000.0)
     for pair, (rgb, mm) in zip(recording.pairs, frames, strict=True):
@@ -82,7 +84,25 @@ def test_a_written_export_reads_back_as_its_frames(tmp_path, frame_column):
         both = (depth > 0) & (mm > 0)
         assert both.mean() > 0.3 and np.median(np.abs(depth[both] - mm[both])) < 10  # mm, from 256x192
     thinned = open_recording(root, None, ReadOptions(every=2), tmp_path / "thin")
-    assert len(thinned.pairs) == 3 and "every 2th frame" in thinned.notes[0]
+    assert len(thinned.pairs) == 3 and thinned.notes[1] == "kept 3 of 5 frames: every 2th frame"
+
+
+@pytest.mark.parametrize("kind", ["strayscanner", "record3d"])
+def test_a_long_phone_export_keeps_an_evenly_spread_cap_and_writes_only_those(tmp_path, kind):
+    frames = mosd_frames(9)
+    if kind == "strayscanner":
+        path = write_stray_scanner(tmp_path / "scan", frames, MOSD_CAMERA)
+    else:
+        path = write_record3d(tmp_path / "scan.r3d", frames, MOSD_CAMERA)
+    recording = open_recording(path, None, ReadOptions(max_frames=3), tmp_path / "run")
+    start = 100 if kind == "strayscanner" else 0  # odometry's timestamps, or frame numbers over the fps
+    assert [p.name for p in recording.pairs] == [f"{start + i / 30:.6f}" for i in (0, 4, 8)]
+    capped = "capped at 3 evenly spread (--max-frames 3; 0 keeps all)"
+    assert recording.notes[1] == f"kept 3 of 9 frames: every frame, {capped}"
+    written = sorted((tmp_path / "run" / f"{kind}-frames" / "color").iterdir())
+    assert len(written) == 3  # the other six were never converted or written
+    everything = open_recording(path, None, ReadOptions(max_frames=None), tmp_path / "all")
+    assert len(everything.pairs) == 9
 
 
 def test_exports_that_cannot_be_read_are_refused_in_one_line(tmp_path):
@@ -92,7 +112,7 @@ def test_exports_that_cannot_be_read_are_refused_in_one_line(tmp_path):
         read_stray_scanner(root, tmp_path / "a")
     root = write_stray_scanner(tmp_path / "scan2", mosd_frames(2), MOSD_CAMERA)
     (root / "rgb.mp4").write_bytes(b"\0\0\0\x18ftypmp42" + b"\x13" * 500)
-    with pytest.raises(UserError, match=r"rgb.mp4: cannot decode the video"):
+    with pytest.raises(UserError, match=r"rgb.mp4: no frame could be decoded \(rgb.mp4 cannot be decoded past frame 0"):
         read_stray_scanner(root, tmp_path / "b")
 
 
@@ -135,3 +155,21 @@ def test_a_damaged_record3d_export_is_refused_in_one_line(tmp_path):
         archive.writestr("rgbd/5.depth", archive.read("rgbd/0.depth")[:100])
     with pytest.raises(UserError, match=r"room.r3d: rgbd/5.depth (is damaged|holds \d+ values)"):
         read_record3d(path, tmp_path / "b")
+
+
+def test_camera_overrides_reach_a_phone_export_in_its_own_pixels_before_frames_are_written(tmp_path):
+    """--fx for a Stray Scanner video is in the video's pixels (1600x1200 here); frames are written at the 640x480
+    fit trains at, so the written camera's fx is 0.4 of it. Record3D's K is overridden the same way."""
+    frames = [
+        (np.asarray(Image.fromarray(rgb).resize((1600, 1200), Image.BILINEAR)), depth) for rgb, depth in mosd_frames(2)
+    ]
+    big = MOSD_CAMERA.resized(1600, 1200)
+    override = CameraFile(fx=1000.0, cx=800.0)
+    root = write_stray_scanner(tmp_path / "scan", frames, big)
+    recording = open_recording(root, None, ReadOptions(camera=override), tmp_path / "a")
+    camera = recording.pairs[0].camera
+    assert (camera.width, camera.fx, camera.fy) == (640, pytest.approx(400.0), pytest.approx(big.fy * 0.4))
+    assert camera.cx == pytest.approx((800.0 + 0.5) * 0.4 - 0.5)
+    path = write_record3d(tmp_path / "scan.r3d", frames, big)
+    camera = open_recording(path, None, ReadOptions(camera=override), tmp_path / "b").pairs[0].camera
+    assert (camera.width, camera.fx) == (640, pytest.approx(400.0))

@@ -19,9 +19,12 @@ from trainer.evaluate import evaluate_frames
 from trainer.registration import (
     alignment,
     colour_coordinates,
+    colour_extrinsics,
     depth_to_colour,
     fit_colour_camera,
+    nearest_surface,
     register_frame,
+    reproject_depth,
 )
 
 DEPTH_CAMERA = Intrinsics(fx=100.0, fy=100.0, cx=39.5, cy=29.5, width=80, height=60)
@@ -81,6 +84,53 @@ def test_registered_depth_moves_the_box_and_the_nearer_surface_wins():
     assert np.all(registered[:, 78:] == 0.0)
 
 
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_a_plane_seen_from_a_baseline_shifts_by_focal_times_baseline_over_depth(sign):
+    """p_colour = p_depth + t: with t = (b, 0, 0) a point's column grows by fx * b / z; with -b it shrinks."""
+    depth = np.zeros((60, 80), dtype=np.float32)
+    depth[:, 20:60] = 2.5  # a plane at 2.5 m whose left and right edges are at columns 20 and 59
+    b = sign * 0.1  # 10 cm at fx 100 px and 2.5 m: 4 px
+    moved = reproject_depth(depth, DEPTH_CAMERA, DEPTH_CAMERA, np.eye(3), np.array([b, 0.0, 0.0]))
+    columns = np.flatnonzero(moved[30] > 0)
+    shift = round(100.0 * b / 2.5)
+    assert (columns[0], columns[-1]) == (20 + shift, 59 + shift)
+    assert np.all(moved[30, columns] == pytest.approx(2.5))
+
+
+@pytest.mark.parametrize(("b", "near", "far"), [(0.1, 10, 15), (-0.1, 30, 25)])
+def test_the_nearer_surface_wins_a_pixel_two_land_on_whatever_their_order(b, near, far):
+    """At fx 100 px, a point at 1 m moves 100 b px and one at 2 m 50 b px: both land on column 20, the near
+    one first in memory (b > 0) or last (b < 0)."""
+    depth = np.zeros((60, 80), dtype=np.float32)
+    depth[30, near], depth[30, far] = 1.0, 2.0
+    moved = reproject_depth(depth, DEPTH_CAMERA, DEPTH_CAMERA, np.eye(3), np.array([b, 0.0, 0.0]))
+    assert moved[30, 20] == 1.0 and np.count_nonzero(moved) == 1
+
+
+def test_the_nearest_surface_buffer_does_not_depend_on_the_order_of_its_points():
+    rng = np.random.default_rng(0)
+    flat = rng.integers(0, 12, 500)
+    z = rng.uniform(0.5, 5.0, 500).astype(np.float32)
+    expected = np.zeros(12, dtype=np.float32)
+    for index in range(12):
+        expected[index] = z[flat == index].min() if np.any(flat == index) else 0.0
+    for order in (np.arange(500), np.argsort(z), np.argsort(-z), rng.permutation(500)):
+        np.testing.assert_array_equal(nearest_surface(flat[order], z[order], 3, 4).ravel(), expected)
+
+
+def test_a_colour_camera_registers_through_the_one_reprojection():
+    colour = _same_camera(fx=90.0, fy=90.0, baseline_m=0.04, roll_deg=1.5)
+    rotation, translation = colour_extrinsics(colour)
+    np.testing.assert_array_equal(
+        depth_to_colour(_box_scene(), DEPTH_CAMERA, colour),
+        reproject_depth(_box_scene(), DEPTH_CAMERA, colour.intrinsics(80, 60), rotation, translation),
+    )
+    # And it agrees with the per-pixel model that reads predictions back at the colour camera.
+    xc, yc, z = colour_coordinates(_box_scene(), DEPTH_CAMERA, colour)
+    registered = depth_to_colour(_box_scene(), DEPTH_CAMERA, colour)
+    assert registered[int(np.rint(yc[30, 40])), int(np.rint(xc[30, 40]))] == pytest.approx(z[30, 40])
+
+
 def test_registered_frame_carries_the_colour_camera():
     frame = Frame(np.zeros((60, 80, 3), np.uint8), _box_scene(), DEPTH_CAMERA, "box")
     colour = _same_camera(fx=90.0, fy=90.0, baseline_m=0.01)
@@ -97,8 +147,8 @@ def test_evaluation_reads_a_colour_frame_prediction_at_each_ground_truth_pixel()
     perfect_in_colour[perfect_in_colour == 0] = 2.0  # a prediction has a value everywhere
     frames = [Frame(np.zeros((60, 80, 3), np.uint8), depth, DEPTH_CAMERA, "box")]
     args = {"min_m": 0.1, "max_m": 10.0}
-    read_through, _, _ = evaluate_frames(lambda rgb: perfect_in_colour, frames, colour_camera=colour, **args)
-    pixel_to_pixel, _, _ = evaluate_frames(lambda rgb: perfect_in_colour, frames, **args)
+    read_through, _, _ = evaluate_frames(lambda rgb, k: perfect_in_colour, frames, colour_camera=colour, **args)
+    pixel_to_pixel, _, _ = evaluate_frames(lambda rgb, k: perfect_in_colour, frames, **args)
     scored = int((depth > 0).sum())
     assert read_through["pixels"] == pixel_to_pixel["pixels"] == scored
     # Every pixel reads its own depth back but two columns of wall beside the box (20 rows): the

@@ -6,6 +6,8 @@ layouts robots and the RealSense ROS wrapper write, so reading it back must give
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from conftest import DATA, REPO, run_cli
@@ -15,10 +17,11 @@ from contract.card import load_card
 from contract.errors import UserError
 from contract.geometry import ColourCamera, Intrinsics
 from harness.recordings import MOSD_CAMERA, BagWriter, write_aligned_bag
+from trainer.data.folders import CameraFile
 from trainer.data.formats import ReadOptions, detect_format, open_recording
 from trainer.data.frames import Frame
-from trainer.data.rosbag import read_bag
-from trainer.registration import alignment, reproject_depth
+from trainer.data.rosbag import BagOptions, read_bag
+from trainer.registration import alignment
 
 REALSENSE_BAG = DATA / "captures" / "realsense-viewer-d435.bag"
 MOSD = DATA / "mosd-tabletop"
@@ -39,7 +42,7 @@ def mosd_frames(count: int, scale: float = 1.0) -> list[tuple[np.ndarray, np.nda
 
 def test_the_realsense_viewer_bag_is_registered_into_its_colour_camera(tmp_path):
     """Depth not aligned in the bag is moved with its extrinsics, and then lines up with colour edges better."""
-    bag = read_bag(REALSENSE_BAG, tmp_path, max_gap_s=0.15)
+    bag = read_bag(REALSENSE_BAG, tmp_path, BagOptions(max_gap_s=0.15))
     assert len(bag.pairs) == 1 and bag.skipped == []
     assert (bag.pairs[0].camera.fx, bag.pairs[0].camera.width) == (pytest.approx(613.2037, abs=1e-3), 640)
     assert "mono16" in bag.notes[0] and "depth unit 1 mm" in bag.notes[0]
@@ -86,28 +89,53 @@ def test_a_written_bag_reads_back_as_its_frames(tmp_path, kind, colour, depth):
             np.testing.assert_array_equal(read, rgb)
 
 
-def test_depth_in_another_camera_is_moved_through_tf_static(tmp_path):
-    """Depth from a half-resolution camera 5 cm to the colour camera's left, joined by /tf_static."""
-    frames = mosd_frames(2, scale=0.5)
-    colour_camera = MOSD_CAMERA.resized(320, 240)
-    depth_camera = Intrinsics(120.0, 120.0, 79.5, 59.5, 160, 120)
-    offset = np.array([0.05, 0.0, 0.0])  # colour-frame points = depth-frame points + offset
-    with BagWriter(tmp_path / "rec", "ros2") as bag:
+def board_and_wall(camera: Intrinsics, origin_x: float) -> np.ndarray:
+    """Depth (m) seen by ``camera`` at ``origin_x`` on the colour camera's x axis, worked out by hand: a board
+    at 1 m over the colour frame's x < 0, and a wall at 2 m behind everything. No function under test."""
+    u = np.arange(camera.width, dtype=np.float64)
+    on_board = origin_x + 1.0 * (u - camera.cx) / camera.fx < 0
+    row = np.where(on_board, 1.0, 2.0).astype(np.float32)
+    return np.repeat(row[None, :], camera.height, axis=0)
+
+
+#: The colour camera of ``board_bag``'s photos, and its depth camera: half the size, 5 cm along x.
+BOARD_COLOUR = MOSD_CAMERA.resized(320, 240)
+BOARD_DEPTH = Intrinsics(120.0, 120.0, 79.5, 59.5, 160, 120)
+BOARD_OFFSET = np.array([0.05, 0.0, 0.0])  # colour-frame points = depth-frame points + offset
+
+
+def board_bag(root: Path, colour_info: Intrinsics) -> Path:
+    """A ROS 2 bag of real photos and the analytic board-and-wall depth from ``BOARD_DEPTH``, joined to the
+    colour camera by /tf_static; the colour topic's CameraInfo says ``colour_info``."""
+    seen = board_and_wall(BOARD_DEPTH, BOARD_OFFSET[0])
+    with BagWriter(root, "ros2") as bag:
         bag.tf_static(99.0, "camera_link", "camera_color_optical_frame", (0.0, 0.0, 0.0))
-        bag.tf_static(99.0, "camera_link", "camera_depth_optical_frame", tuple(offset))
-        for i, (rgb, mm) in enumerate(frames):
+        bag.tf_static(99.0, "camera_link", "camera_depth_optical_frame", tuple(BOARD_OFFSET))
+        for i, (rgb, _) in enumerate(mosd_frames(2, scale=0.5)):
             t = 100.0 + i / 30
             bag.image("/camera/color/image_raw", t, rgb, "rgb8", "camera_color_optical_frame")
-            bag.camera_info("/camera/color/camera_info", t, colour_camera, "camera_color_optical_frame")
-            seen = reproject_depth(mm / 1000.0, colour_camera, depth_camera, np.eye(3), -offset)
+            bag.camera_info("/camera/color/camera_info", t, colour_info, "camera_color_optical_frame")
             bag.image("/camera/depth/image_rect_raw", t, np.rint(seen * 1000).astype(np.uint16), "16UC1", "d")
-            bag.camera_info("/camera/depth/camera_info", t, depth_camera, "camera_depth_optical_frame")
+            bag.camera_info("/camera/depth/camera_info", t, BOARD_DEPTH, "camera_depth_optical_frame")
+    return root
+
+
+def test_depth_in_another_camera_is_moved_through_tf_static(tmp_path):
+    """Depth from a half-resolution camera 5 cm along x from the colour camera, joined by /tf_static.
+
+    Both views are drawn analytically, so a translation read with the wrong sign (or applied with one)
+    puts the board's edge 2 x fx x b / z = 26 px from where the colour camera sees it, and fails.
+    """
+    colour_camera = BOARD_COLOUR
+    board_bag(tmp_path / "rec", colour_camera)
     recording = open_recording(tmp_path / "rec", None, ReadOptions(), tmp_path / "scratch")
     assert "with /tf_static (translation 50.0 mm" in recording.notes[2]
-    truth = frames[0][1].astype(np.float32)
-    back = np.asarray(Image.open(recording.pairs[0].depth), dtype=np.float32)
-    both = (truth > 0) & (back > 0)
-    assert both.mean() > 0.4 and np.median(np.abs(back[both] - truth[both])) < 15  # mm, after two resamplings
+    truth = board_and_wall(colour_camera, 0.0)[120] * 1000
+    back = np.asarray(Image.open(recording.pairs[0].depth), dtype=np.float32)[120]
+    board_edge = np.flatnonzero(truth == 1000)[-1]  # the board's last column: the colour camera's cx
+    assert np.flatnonzero(back == 1000)[-1] == board_edge
+    seen_both = (back > 0) & (np.abs(np.arange(320) - board_edge) > 14)  # away from the hidden strip
+    np.testing.assert_array_equal(back[seen_both], truth[seen_both])
 
 
 def test_bags_that_cannot_be_fitted_are_refused_in_one_line(tmp_path):
@@ -131,7 +159,7 @@ def test_bags_that_cannot_be_fitted_are_refused_in_one_line(tmp_path):
             bag.camera_info("/cam/aligned_depth_to_color/camera_info", 10.5 + i, MOSD_CAMERA.resized(160, 120))
     with pytest.raises(UserError, match=r"no colour frame of /cam/color/image_raw has depth .* within 20 ms"):
         read_bag(apart, tmp_path / "c")
-    assert len(read_bag(apart, tmp_path / "d", max_gap_s=0.6).pairs) == 2
+    assert len(read_bag(apart, tmp_path / "d", BagOptions(max_gap_s=0.6)).pairs) == 2
     (tmp_path / "broken.bag").write_bytes(b"#ROSBAG V2.0\n" + b"\0" * 64)
     with pytest.raises(UserError, match=r"broken.bag: not a readable ROS bag"):
         read_bag(tmp_path / "broken.bag", tmp_path / "e")
@@ -147,3 +175,99 @@ def test_fit_from_a_ros2_bag_publishes_a_model(registry, tmp_path):
     assert "pairs: 24 found, 0 skipped" in out and "| fitted model |" in out
     card = load_card(tmp_path / "registry" / "bag-room" / "0.1.0")
     assert card.training.data[0].format == "rosbag"
+
+
+@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
+def test_compressed_depth_is_decoded_from_its_header(tmp_path, encoding):
+    """image_transport's compressedDepth: 16UC1 holds millimetres, 32FC1 quantised inverse depth (v = A / d + B)."""
+    frames = mosd_frames(2, scale=0.25)
+    k = MOSD_CAMERA.resized(160, 120)
+    with BagWriter(tmp_path / "rec.bag", "ros1") as bag:
+        for i, (rgb, mm) in enumerate(frames):
+            t = 1.0 + i / 30
+            bag.image("/camera/color/image_raw", t, rgb, "rgb8")
+            bag.camera_info("/camera/color/camera_info", t, k)
+            bag.compressed_depth("/camera/aligned_depth_to_color/image_raw/compressedDepth", t, mm / 1000.0, encoding)
+            bag.camera_info("/camera/aligned_depth_to_color/camera_info", t, k)
+    recording = open_recording(tmp_path / "rec.bag", None, ReadOptions(), tmp_path / "scratch")
+    assert f"({encoding}; compressedDepth png" in recording.notes[0]
+    truth = frames[1][1].astype(np.float64)
+    back = np.asarray(Image.open(recording.pairs[1].depth), dtype=np.float64)
+    np.testing.assert_array_equal(back > 0, truth > 0)
+    valid = truth > 0
+    # 32FC1's steps at depth d are d^2 / A wide: 0.4 mm at 2 m with the plugin's defaults (A = 10100).
+    tolerance = 0.5 if encoding == "16UC1" else (truth[valid] / 1000) ** 2 / 10100 * 1000 + 0.5
+    assert np.all(np.abs(back[valid] - truth[valid]) <= tolerance)
+
+
+def distorted_edge(camera: Intrinsics, coefficients: np.ndarray, edge_x: float) -> np.ndarray:
+    """A photo through a lens with ``coefficients`` (plumb_bob) of a scene whose undistorted image is dark left of
+    column ``edge_x`` and bright right of it: each distorted pixel's undistorted position from OpenCV's
+    ``undistortPoints`` (the inverse model, not the remap the reader uses)."""
+    import cv2
+
+    matrix = np.array([[camera.fx, 0, camera.cx], [0, camera.fy, camera.cy], [0, 0, 1]])
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width].astype(np.float64)
+    pixels = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
+    undistorted = cv2.undistortPoints(pixels, matrix, coefficients, P=matrix).reshape(camera.height, camera.width, 2)
+    bright = undistorted[..., 0] > edge_x
+    return np.repeat(np.where(bright, 220, 30).astype(np.uint8)[..., None], 3, axis=2)
+
+
+def test_lens_distortion_in_camera_info_is_undone_before_anything_is_written(tmp_path):
+    """A straight edge photographed through barrel distortion (k1 -0.3) is bent; read back, it is straight."""
+    camera = Intrinsics(200.0, 200.0, 159.5, 119.5, 320, 240)
+    coefficients = np.array([-0.3, 0.08, 0.0, 0.0, 0.0])
+    photo = distorted_edge(camera, coefficients, edge_x=279.5)
+    depth = np.full((240, 320), 1500, np.uint16)
+    with BagWriter(tmp_path / "rec.bag", "ros1") as bag:
+        for i in range(2):
+            t = 1.0 + i / 30
+            bag.image("/camera/color/image_raw", t, photo, "rgb8")
+            bag.camera_info("/camera/color/camera_info", t, camera, distortion=("plumb_bob", tuple(coefficients)))
+            bag.image("/camera/aligned_depth_to_color/image_raw", t, depth, "16UC1")
+            bag.camera_info("/camera/aligned_depth_to_color/camera_info", t, camera)
+    recording = open_recording(tmp_path / "rec.bag", None, ReadOptions(), tmp_path / "scratch")
+    assert any("plumb_bob lens distortion undone" in note for note in recording.notes)
+    bent = [int(np.argmax(photo[row, :, 0] > 125)) for row in (20, 120, 220)]
+    assert bent[0] < bent[1] - 3  # as recorded the edge bows: its ends are pulled towards the centre
+    back = np.asarray(Image.open(recording.pairs[0].rgb))
+    straight = [int(np.argmax(back[row, :, 0] > 125)) for row in (20, 120, 220)]
+    assert max(straight) - min(straight) <= 1 and abs(straight[1] - 280) <= 1
+
+
+def test_a_camera_info_for_the_full_sensor_is_scaled_to_its_images(tmp_path):
+    # CameraInfo for 640x480, images 160x120.
+    bag = write_aligned_bag(tmp_path / "rec.bag", "ros1", mosd_frames(2, scale=0.25), info=MOSD_CAMERA)
+    recording = open_recording(bag, None, ReadOptions(), tmp_path / "scratch")
+    assert recording.pairs[0].camera == MOSD_CAMERA.resized(160, 120)
+    assert any("640x480 camera scaled to /camera/color/image_raw's 160x120" in note for note in recording.notes)
+
+
+def test_camera_overrides_reach_a_bag_before_its_depth_is_registered(tmp_path):
+    """The bag's colour CameraInfo is 20% off; --fx --fy --cx --cy give the true camera. Registration must use
+    the true one: the board's edge then lands where the true colour camera sees it (a bag read with the wrong
+    camera and corrected afterwards puts it elsewhere)."""
+    colour_camera = BOARD_COLOUR
+    wrong = Intrinsics(colour_camera.fx * 1.2, colour_camera.fy * 1.2, 150.0, 110.0, 320, 240)
+    board_bag(tmp_path / "rec", wrong)
+    k = colour_camera
+    override = CameraFile(fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy)
+    recording = open_recording(tmp_path / "rec", None, ReadOptions(camera=override), tmp_path / "scratch")
+    assert recording.pairs[0].camera == colour_camera
+    back = np.asarray(Image.open(recording.pairs[0].depth), dtype=np.float32)[120]
+    assert np.flatnonzero(back == 1000)[-1] == np.flatnonzero(board_and_wall(colour_camera, 0.0)[120] == 1)[-1]
+
+
+def test_a_depth_scale_reaches_a_bag_before_its_frames_are_written(tmp_path):
+    """16UC1 recorded in tenths of a millimetre: --depth-scale 10000 says so, and the written depth is right."""
+    frames = mosd_frames(2, scale=0.25)
+    tenths = [(rgb, (mm.astype(np.uint32) * 10).clip(0, 65535).astype(np.uint16)) for rgb, mm in frames]
+    bag = write_aligned_bag(tmp_path / "rec.bag", "ros1", tenths)
+    options = ReadOptions(camera=CameraFile(depth_scale=10000.0))
+    recording = open_recording(bag, None, options, tmp_path / "scratch")
+    back = np.asarray(Image.open(recording.pairs[0].depth), dtype=np.int64)
+    truth = frames[0][1].astype(np.int64)
+    fits = truth * 10 <= 65535
+    assert "depth unit 0.1 mm" in recording.notes[0]
+    assert np.abs(back[fits] - truth[fits]).max() <= 1

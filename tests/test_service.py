@@ -12,6 +12,7 @@ import subprocess
 import sys
 import time
 import zlib
+from pathlib import Path
 
 import httpx
 import numpy as np
@@ -19,6 +20,7 @@ import pytest
 from conftest import REPO, TUM_FRAME
 from PIL import Image
 from plyfile import PlyData
+from pydantic import ValidationError
 
 from app.catalog import ModelCatalog
 from app.settings import Settings
@@ -316,23 +318,53 @@ def test_overload_gets_503_with_retry_after_at_once(registry, model):
         assert 'status="503"' in httpx.get(f"{url}/metrics", timeout=5).text
 
 
+def start_service(registry: Path, **env: str) -> subprocess.CompletedProcess:
+    """``python -m app`` on ``registry`` with ``env`` on top, expected to stop at startup (port 1 is never bound)."""
+    base = {"RGB2CLOUD_REGISTRY": str(registry), "RGB2CLOUD_BUNDLED_REGISTRY": str(NO_REGISTRY), "RGB2CLOUD_PORT": "1"}
+    command = [sys.executable, "-m", "app"]
+    return subprocess.run(
+        command, cwd=REPO, capture_output=True, text=True, timeout=60, env={**os.environ, **base, **env}
+    )
+
+
 def test_a_corrupt_model_stops_startup_with_one_clear_line(registry, tmp_path):
     broken = tmp_path / "weights"
     shutil.copytree(registry, broken)
     onnx_file = broken / "tiny" / "0.1.0" / "generator.onnx"
     onnx_file.write_bytes(onnx_file.read_bytes()[:-10])
-    env = {"RGB2CLOUD_REGISTRY": str(broken), "RGB2CLOUD_BUNDLED_REGISTRY": str(NO_REGISTRY), "RGB2CLOUD_PORT": "1"}
-    result = subprocess.run(
-        [sys.executable, "-m", "app"],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env={**os.environ, **env},
-    )
+    result = start_service(broken)
     assert result.returncode == 1
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "generator.onnx" in lines[0] and "sha256" in lines[0], result.stderr
+
+
+@pytest.mark.parametrize(
+    ("env", "says"),
+    [
+        ({"RGB2CLOUD_MODEL_NAME": "office"}, "RGB2CLOUD_MODEL_NAME is retired: set RGB2CLOUD_MODEL=NAME instead"),
+        ({"RGB2CLOUD_MODELS": "office"}, "RGB2CLOUD_MODELS is not a setting"),
+        (
+            {"RGB2CLOUD_BACKEND": "torchscript", "RGB2CLOUD_PRECISION": "int8"},
+            "RGB2CLOUD_PRECISION=int8 needs RGB2CLOUD_BACKEND=onnx",
+        ),
+    ],
+)
+def test_a_retired_unknown_or_incoherent_setting_stops_startup_in_one_line(registry, env, says):
+    """A deployment that still sets a renamed variable must not start and serve another model in silence."""
+    result = start_service(registry, **env)
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert result.returncode == 1 and len(lines) == 1 and says in lines[0], result.stderr
+
+
+def test_the_client_reads_host_and_port_from_the_settings(monkeypatch):
+    from app.client import service_url
+
+    monkeypatch.setenv("RGB2CLOUD_HOST", "0.0.0.0")
+    monkeypatch.setenv("RGB2CLOUD_PORT", "8123")
+    assert service_url() == "http://127.0.0.1:8123"
+    monkeypatch.setenv("RGB2CLOUD_PORT", "0")
+    with pytest.raises(ValidationError):
+        service_url()  # the client validates as the service does
 
 
 def test_torchscript_backend_serves_the_same_depth(registry, service):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -17,13 +18,13 @@ from tqdm import tqdm
 
 from contract.card import METRIC_KEYS, ONNX_FILE, PAPER_METRICS, load_card, verify_files
 from contract.errors import UserError
-from contract.geometry import ColourCamera
+from contract.geometry import ColourCamera, Intrinsics
+from contract.resample import DepthRun, depth_at_photo
 from contract.runtime import OnnxGenerator, Precision
 from trainer.checkpoint import load_graph
-from trainer.config import DataSource
+from trainer.config import DataSource, RunConfig
 from trainer.data.formats import describe, open_source
 from trainer.data.frames import Frame
-from trainer.data.transforms import resize_frame
 from trainer.inference import EagerGenerator
 from trainer.metrics import MetricAccumulator, valid_mask
 from trainer.registration import sample_at_colour
@@ -55,23 +56,43 @@ class Diagnostic(Protocol):
         """The diagnostic over every image, stored under ``name`` in the evaluation's result."""
 
 
+@dataclass(frozen=True)
+class Predictor:
+    """A model as the service runs it: a photo in, metres at the photo's size out (``contract.resample``).
+
+    ``run`` maps HxWx3 uint8 at the model's own camera to HxW metres; ``camera`` is that camera
+    (a version's card camera, a checkpoint's training camera). Calling the predictor with a
+    photo and the camera that took it resamples the photo to the model's focal length first,
+    so every score is of the depth the service would return for that photo.
+    """
+
+    run: DepthRun
+    camera: Intrinsics
+    label: str
+
+    def __call__(self, rgb: np.ndarray, photo: Intrinsics) -> np.ndarray:
+        return depth_at_photo(self.run, rgb, photo, self.camera)[0]
+
+
+#: What ``evaluate_frames`` scores: metres at the photo's size from a photo and the camera that took it.
+FramePredict = Callable[[np.ndarray, Intrinsics], np.ndarray]
+
+
 def evaluate_frames(
-    predict: Callable[[np.ndarray], np.ndarray],
+    predict: FramePredict,
     frames: Sequence[Frame],
     *,
     min_m: float,
     max_m: float,
-    scale: float = 1.0,
     samples: int = 0,
     progress: bool = False,
     colour_camera: ColourCamera | None = None,
     diagnostics: Sequence[Diagnostic] = (),
 ) -> tuple[dict, list[dict], list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-    """Predict every frame (resized by ``scale``) and average the per-image metrics.
+    """Predict every frame at its own size (``predict(rgb, intrinsics)``) and average the per-image metrics.
 
-    ``predict`` maps an HxWx3 uint8 image to HxW metres. Returns (the table row,
-    per-image rows, up to ``samples`` evenly spaced (rgb, prediction, ground
-    truth) triples for a sample grid).
+    Returns (the table row, per-image rows, up to ``samples`` evenly spaced (rgb, prediction,
+    ground truth) triples for a sample grid).
 
     ``colour_camera``: the ground truth is a depth camera's and the prediction the
     colour camera's (a model trained on registered depth); each ground-truth pixel
@@ -84,12 +105,9 @@ def evaluate_frames(
     keep = set(np.linspace(0, len(frames) - 1, samples).round().astype(int)) if samples else set()
     for i in tqdm(range(len(frames)), desc="evaluate", disable=not progress, unit="img"):
         frame = frames[i]
-        if scale != 1.0:
-            h, w = frame.depth.shape
-            frame = resize_frame(frame, round(h * scale), round(w * scale))
-        pred = predict(frame.rgb)
+        pred = predict(frame.rgb, frame.intrinsics)
         if colour_camera is not None:
-            pred = sample_at_colour(pred, frame.depth, frame.intrinsics, colour_camera.resized(scale))
+            pred = sample_at_colour(pred, frame.depth, frame.intrinsics, colour_camera)
         row = acc.add(pred, frame.depth, frame.intrinsics, frame.name)
         if row:
             valid = valid_mask(frame.depth, min_m, max_m)
@@ -104,10 +122,8 @@ def evaluate_frames(
     return result, per_image, grid
 
 
-def load_predictor(
-    path: Path, inference: dict[str, Any] | None = None, precision: Precision = "fp32"
-) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
-    """A depth predictor and a label from a checkpoint (.pt) or a published version folder.
+def load_predictor(path: Path, inference: dict[str, Any] | None = None, precision: Precision = "fp32") -> Predictor:
+    """The predictor of a checkpoint (.pt) or a published version folder, at the model's own camera.
 
     A version folder is checked against its card (sha256) and, as exported, run the
     way the service runs it: ONNX Runtime, then the card's depth encoding. With
@@ -125,7 +141,11 @@ def load_predictor(
             raise UserError(f"{path}: this version has no int8 graph (publish one with export --precision int8)")
         file_name, how = (card.int8.file, "ONNX int8") if precision == "int8" and card.int8 else (ONNX_FILE, "ONNX")
         runner = OnnxGenerator(path / file_name, card.input_multiple)
-        return (lambda rgb: card.depth_encoding.decode(runner.predict_raw(rgb))), f"{card.name} {card.version} ({how})"
+        return Predictor(
+            lambda rgb: card.depth_encoding.decode(runner.predict_raw(rgb)),
+            card.camera,
+            f"{card.name} {card.version} ({how})",
+        )
     graph, weights = load_graph(path, inference)
     runner = EagerGenerator(graph, weights.config.generator.input_multiple)
     how = weights.inference.describe()
@@ -134,7 +154,23 @@ def load_predictor(
         label = f"{weights.published} (eager{how})"
     else:
         label = f"rgb2cloud ({_run_name(path)}, step {weights.step}{how})"
-    return (lambda rgb: weights.config.depth.decode(runner.predict_raw(rgb))), label
+    camera = load_card(path).camera if path.is_dir() else model_camera(weights.config)
+    return Predictor(lambda rgb: weights.config.depth.decode(runner.predict_raw(rgb)), camera, label)
+
+
+def model_camera(config: RunConfig) -> Intrinsics:
+    """The camera a run's generator was trained at: its first source's, at the run's ``val_scale``.
+
+    Training crops and validation frames are resized by ``val_scale`` (the exported graph's
+    input scale), so this is the focal length the generator learned: the card's camera, and the
+    one every photo is resampled to. ``rgb2cloud fit`` trains a large recording at a smaller
+    scale; its card must name that camera, not the recording's.
+    """
+    native = open_source(config.data.train[0])[0].intrinsics
+    scale = config.data.val_scale
+    if scale == 1.0:
+        return native
+    return native.resized(round(native.width * scale), round(native.height * scale))
 
 
 def _run_name(checkpoint: Path) -> str:
@@ -212,7 +248,7 @@ def score_source(
     diagnostics: Sequence[Diagnostic] = (),
 ) -> tuple[dict, list[dict], list[tuple[np.ndarray, np.ndarray, np.ndarray]], str]:
     """``evaluate_frames`` of a checkpoint or version on a data source, with the model's label."""
-    predict, label = load_predictor(model, inference, precision)
+    predict = load_predictor(model, inference, precision)
     result, per_image, grid = evaluate_frames(
         predict,
         open_source(source),
@@ -223,7 +259,7 @@ def score_source(
         colour_camera=colour_camera,
         diagnostics=diagnostics,
     )
-    return result, per_image, grid, label
+    return result, per_image, grid, predict.label
 
 
 def evaluate_source(

@@ -25,6 +25,7 @@ from PIL import Image
 
 from contract.card import (
     INT8_ONNX_FILE,
+    INT8_SAMPLE_FILE,
     ONNX_FILE,
     TORCHSCRIPT_FILE,
     DataRef,
@@ -38,11 +39,13 @@ from contract.card import (
 from contract.codec import INPUT_ENCODING, DepthEncoding
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from contract.runtime import OnnxGenerator, Precision
+from contract.resample import to_model_camera
+from contract.runtime import INT8_AGREEMENT, OnnxGenerator, Precision
 from trainer.checkpoint import load_graph
 from trainer.config import DataSource
 from trainer.data.formats import describe, open_source
 from trainer.data.frames import FrameReader
+from trainer.evaluate import model_camera
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.quantize import (
     CALIBRATION,
@@ -52,12 +55,10 @@ from trainer.quantize import (
     calibration_frames,
     int8_parity,
     quantize_generator,
-    spread_photos,
 )
 
 PARITY_TOLERANCE = 1e-4
 #: int8 depth must agree with fp32 within 1.25x on at least this share of the parity image's pixels.
-INT8_AGREEMENT = 0.95
 OPSET = 18
 
 
@@ -138,20 +139,25 @@ def publish_int8(
     """Quantise ``folder``'s fp32 graph into ``INT8_ONNX_FILE`` beside it, check it, and describe it for the card.
 
     Calibration: ``CALIBRATION_FRAMES`` of the training frames, spread over them, at the card camera's
-    size; the parity image is shown at that size too, as the service shows photos.
+    size; the parity image is shown at that size too, as the service shows photos, and ships as the
+    version's int8 sample: wherever the version loads, both graphs are compared on it again.
     """
-    photos = calibration_frames(spread_photos(readers, CALIBRATION_FRAMES), camera.width, camera.height)
+    photos = calibration_frames(readers, CALIBRATION_FRAMES, camera)
     int8 = folder / INT8_ONNX_FILE
     done = quantize_generator(folder / ONNX_FILE, int8, photos, multiple, CALIBRATION, FP32_NODES, QUANTISED_OPS)
-    (shown,) = calibration_frames([image], camera.width, camera.height)
+    # The parity photo has no camera of its own: it is taken to have the model's field of view.
+    shown, _ = to_model_camera(image, camera.resized(image.shape[1], image.shape[0]), camera)
     parity = int8_parity(folder / ONNX_FILE, folder / INT8_ONNX_FILE, shown, multiple, encoding)
     if parity["agreement"] < INT8_AGREEMENT:
         raise ParityError(
             f"{INT8_ONNX_FILE}: int8 depth agrees with fp32 within 1.25x on {parity['agreement']:.1%} of the parity "
             f"image's pixels (< {INT8_AGREEMENT:.0%})"
         )
+    Image.fromarray(shown).save(folder / INT8_SAMPLE_FILE)
     return Int8Graph(
-        method="ONNX Runtime static QDQ: per-channel int8 weights, uint8 activations",
+        method="ONNX Runtime static QDQ: per-channel int8 weights in 7 bits (reduce_range: no saturation on CPUs "
+        "without VNNI), uint8 activations",
+        sample=INT8_SAMPLE_FILE,
         calibration=done.method,
         frames=done.frames,
         frames_from=[describe(source) for source in sources],
@@ -195,19 +201,6 @@ def _data_ref(source: DataSource, reader: FrameReader) -> DataRef:
     )
 
 
-def training_camera(native: Intrinsics, val_scale: float) -> Intrinsics:
-    """The camera at which the generator was trained: the first source's, at the run's ``val_scale``.
-
-    Training crops and validation frames are resized by ``val_scale`` (the exported graph's
-    input scale), so this is the focal length the generator learned, and the one the
-    service resamples every photo to. ``rgb2cloud fit`` trains a large recording at a
-    smaller scale; its card must name that camera, not the recording's.
-    """
-    if val_scale == 1.0:
-        return native
-    return native.resized(round(native.width * val_scale), round(native.height * val_scale))
-
-
 def export_and_publish(
     checkpoint: Path,
     registry: Path,
@@ -239,7 +232,7 @@ def export_and_publish(
     config = weights.config
     readers = [open_source(s) for s in config.data.train]
     data = data or [_data_ref(source, reader) for source, reader in zip(config.data.train, readers, strict=True)]
-    camera = training_camera(readers[0][0].intrinsics, config.data.val_scale)
+    camera = model_camera(config)
     with Image.open(parity_image) as im:
         image = np.asarray(im.convert("RGB"))
 
@@ -253,6 +246,7 @@ def export_and_publish(
         if precision == "int8":
             int8 = publish_int8(folder, config.data.train, readers, camera, image, graph.input_multiple, config.depth)
             files[INT8_ONNX_FILE] = folder / INT8_ONNX_FILE
+            files[INT8_SAMPLE_FILE] = folder / INT8_SAMPLE_FILE
         card = ModelCard(
             name=name,
             version=version,

@@ -35,8 +35,9 @@ def _split(outputs: list[list[torch.Tensor]], n: int) -> tuple[list[list[torch.T
 
 
 @dataclass(frozen=True)
-class Precision:
-    """Mixed precision on CUDA (bf16 where supported, else fp16 with a gradient scaler); fp32 elsewhere.
+class Autocast:
+    """Training's autocast: mixed precision on CUDA (bf16 where supported, else fp16 with a gradient scaler),
+    fp32 elsewhere. Not to be confused with ``contract.runtime.Precision``, the exported graph a service runs.
 
     bf16 autocast on a CPU was measured and not kept: 1.86x the steps per minute on an AVX512-BF16
     CPU, but on top of the discriminator-free fit it lost 0.033 δ1 on aims-lab (docs/research.md).
@@ -51,7 +52,7 @@ class Precision:
         return self.enabled and self.dtype == torch.float16
 
     @classmethod
-    def for_device(cls, device: torch.device, wanted: bool) -> Precision:
+    def for_device(cls, device: torch.device, wanted: bool) -> Autocast:
         enabled = wanted and device.type == "cuda"
         return cls(enabled, torch.bfloat16 if enabled and torch.cuda.is_bf16_supported() else torch.float16)
 
@@ -83,7 +84,7 @@ def gan_step(
     gan_loss: GANLoss,
     loss: LossConfig,
     batch: dict[str, torch.Tensor],
-    amp: Precision,
+    amp: Autocast,
 ) -> dict[str, torch.Tensor]:
     """One pix2pixHD update: G against the current D, then D against the same fake batch; the losses."""
     opt_g, opt_d = optimisers

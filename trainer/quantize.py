@@ -27,10 +27,11 @@ from pathlib import Path
 
 import numpy as np
 import onnx
-from PIL import Image
 
 from contract.codec import DepthEncoding
-from contract.runtime import OnnxGenerator, to_grid
+from contract.geometry import Intrinsics
+from contract.resample import to_model_camera
+from contract.runtime import OnnxGenerator, int8_agreement, to_grid
 from trainer.data.frames import FrameReader
 
 #: ONNX Runtime's calibration methods, by the names the card and the command line use.
@@ -41,6 +42,11 @@ CALIBRATION = "percentile"
 CALIBRATION_FRAMES = 20
 FP32_NODES = "none"
 QUANTISED_OPS = "all"
+#: Weights in 7 bits: x86 CPUs without VNNI multiply uint8 activations by int8 weights with VPMADDUBSW, whose
+#: 16-bit pair sums saturate (255 x 127 x 2 > 32,767); with ONNX Runtime's reduced range (|w| <= 64) they
+#: cannot (255 x 64 x 2 = 32,640), so the graph gives the same depth on every x86 CPU. Its cost on this VNNI
+#: CPU is in docs/research.md.
+REDUCE_RANGE = True
 #: Which nodes can stay in fp32 (``fp32_nodes``).
 KEEP = ("none", "ends", "ends+upsampling")
 #: Which kinds of node are quantised: every kind ONNX Runtime can (None), or the convolutions alone.
@@ -85,21 +91,17 @@ class _Frames:
         return next(self._batches, None)
 
 
-def spread_photos(readers: Sequence[FrameReader], count: int) -> list[np.ndarray]:
-    """``count`` photos spread evenly over every frame of ``readers`` (a model's training sources)."""
+def calibration_frames(readers: Sequence[FrameReader], count: int, camera: Intrinsics) -> list[np.ndarray]:
+    """``count`` photos spread evenly over every frame of ``readers`` (a model's training sources), each
+    resampled to the model's ``camera`` by the one rescale rule, exactly as the service shows it photos."""
     frames = [(reader, i) for reader in readers for i in range(len(reader))]
     picks = np.linspace(0, len(frames) - 1, min(count, len(frames))).round().astype(int)
-    return [frames[i][0][frames[i][1]].rgb for i in picks]
-
-
-def calibration_frames(photos: Sequence[np.ndarray], width: int, height: int) -> list[np.ndarray]:
-    """Photos resized to the generator's input size (the card's camera), as the service resizes them."""
-    resized = []
-    for rgb in photos:
-        if rgb.shape[:2] != (height, width):
-            rgb = np.asarray(Image.fromarray(rgb).resize((width, height), Image.Resampling.BILINEAR))
-        resized.append(rgb)
-    return resized
+    photos = []
+    for pick in picks:
+        reader, index = frames[pick]
+        frame = reader[index]
+        photos.append(to_model_camera(frame.rgb, frame.intrinsics, camera)[0])
+    return photos
 
 
 @contextlib.contextmanager
@@ -114,12 +116,20 @@ def _quiet_root_logger() -> Iterator[None]:
 
 
 def quantize_generator(
-    fp32: Path, out: Path, frames: Sequence[np.ndarray], multiple: int, method: str, keep: str, ops: str = "all"
+    fp32: Path,
+    out: Path,
+    frames: Sequence[np.ndarray],
+    multiple: int,
+    method: str,
+    keep: str,
+    ops: str = "all",
+    reduce_range: bool = REDUCE_RANGE,
 ) -> Quantized:
     """Write the int8 QDQ graph of ``fp32`` to ``out``, calibrated on ``frames`` (HxWx3 uint8 at the input size).
 
     ``keep`` names the nodes left in fp32 (``fp32_nodes``); ``ops`` the kinds of node quantised
-    (``OPS``: every kind ONNX Runtime can, or the convolutions alone, leaving the residual sums fp32).
+    (``OPS``: every kind ONNX Runtime can, or the convolutions alone, leaving the residual sums fp32);
+    ``reduce_range`` quantises weights to 7 bits (``REDUCE_RANGE``).
     """
     from onnxruntime.quantization import (
         CalibrationMethod,
@@ -154,6 +164,7 @@ def quantize_generator(
                 per_channel=True,
                 weight_type=QuantType.QInt8,
                 activation_type=QuantType.QUInt8,
+                reduce_range=reduce_range,
                 calibrate_method=calibrate,
                 nodes_to_exclude=kept,
                 op_types_to_quantize=OPS[ops],
@@ -162,15 +173,7 @@ def quantize_generator(
 
 
 def int8_parity(fp32: Path, int8: Path, image: np.ndarray, multiple: int, encoding: DepthEncoding) -> dict[str, float]:
-    """How far the int8 graph's depth is from the fp32 graph's on one photo (at the generator's input size).
-
-    ``agreement``: the share of pixels whose two depths are within 1.25x of each other (δ1 with fp32 as
-    the truth); ``median_rel``: the median of |int8 - fp32| / fp32.
-    """
+    """How far the int8 graph's depth is from the fp32 graph's on one photo (``contract.runtime.int8_agreement``)."""
     reference = encoding.decode(OnnxGenerator(fp32, multiple).predict_raw(image))
     depth = encoding.decode(OnnxGenerator(int8, multiple).predict_raw(image))
-    valid = (reference > 0) & (depth > 0)
-    ratio = np.maximum(depth[valid] / reference[valid], reference[valid] / depth[valid])
-    agreement = float((ratio < 1.25).mean()) if valid.any() else 0.0
-    median_rel = float(np.median(np.abs(depth[valid] - reference[valid]) / reference[valid])) if valid.any() else 1.0
-    return {"agreement": agreement, "median_rel": median_rel}
+    return int8_agreement(reference, depth)

@@ -48,20 +48,24 @@ def depth_to_colour(depth: np.ndarray, depth_camera: Intrinsics, colour: ColourC
 
     Nothing is filled in: a colour pixel that no depth pixel reaches (beyond the depth
     camera's view, or behind an edge only the colour camera sees past) has no
-    ground truth, and training masks it. With a wider colour lens, as on Kinect v1,
-    depth pixels land closer together than colour pixels, so no pinholes open.
+    ground truth, and training masks it. It is ``reproject_depth`` with the pair's rigid
+    transform (``colour_extrinsics``): one reprojection for every registration.
     """
     h, w = depth.shape
-    xc, yc, z = colour_coordinates(depth, depth_camera, colour)
-    col, row = np.rint(xc), np.rint(yc)
-    inside = np.isfinite(z) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
-    flat = (row[inside] * w + col[inside]).astype(np.int64)
-    zs = z[inside]
-    # Write far points first so that the nearest point at each pixel is written last and wins.
-    order = np.argsort(-zs, kind="stable")
-    out = np.zeros(h * w, dtype=np.float32)
-    out[flat[order]] = zs[order]
-    return out.reshape(h, w)
+    rotation, translation = colour_extrinsics(colour)
+    return reproject_depth(depth, depth_camera, colour.intrinsics(w, h), rotation, translation)
+
+
+def colour_extrinsics(colour: ColourCamera) -> tuple[np.ndarray, np.ndarray]:
+    """(rotation, translation) from the depth camera's frame into a ``ColourCamera``'s, as ``reproject_depth`` takes.
+
+    ``colour_coordinates``' model as a rigid transform: the colour camera sits ``baseline_m`` along the
+    depth camera's x axis (so a point's x there is ``x - baseline``), turned by ``roll_deg`` about the
+    optical axis. Neither changes a point's z.
+    """
+    c, s = np.cos(np.radians(colour.roll_deg)), np.sin(np.radians(colour.roll_deg))
+    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return rotation, rotation @ np.array([-colour.baseline_m, 0.0, 0.0])
 
 
 def reproject_depth(
@@ -81,7 +85,7 @@ def reproject_depth(
     is then split into ``n x n`` samples of its own depth before it is projected, so no pinholes
     open inside a surface while an edge stays where the depth had it.
     """
-    n = max(1, int(np.ceil(max(colour_camera.fx / depth_camera.fx, colour_camera.fy / depth_camera.fy))))
+    n = max(1, int(np.ceil(max(colour_camera.fx / depth_camera.fx, colour_camera.fy / depth_camera.fy) - 1e-9)))
     h, w = depth.shape
     offsets = (np.arange(n) + 0.5) / n - 0.5
     v = (np.arange(h)[:, None] + offsets[None, :]).ravel()  # every sample row, in depth pixels
@@ -99,11 +103,19 @@ def reproject_depth(
     zc = zc[ahead]
     inside = (col >= 0) & (col < colour_camera.width) & (row >= 0) & (row < colour_camera.height)
     flat = (row[inside] * colour_camera.width + col[inside]).astype(np.int64)
-    zs = zc[inside]
-    order = np.argsort(-zs, kind="stable")  # far first, so the nearest point at each pixel is written last
-    out = np.zeros(colour_camera.height * colour_camera.width, dtype=np.float32)
-    out[flat[order]] = zs[order]
-    return out.reshape(colour_camera.height, colour_camera.width)
+    return nearest_surface(flat, zc[inside], colour_camera.height, colour_camera.width)
+
+
+def nearest_surface(flat: np.ndarray, z: np.ndarray, height: int, width: int) -> np.ndarray:
+    """A ``height`` x ``width`` depth image where each pixel holds the least ``z`` landing on it (0: none).
+
+    A z-buffer with ``np.minimum.at``, which combines repeated indices by definition; a plain
+    fancy-index assignment leaves the winner of a repeated index to an order NumPy does not define.
+    """
+    out = np.full(height * width, np.inf, dtype=np.float32)
+    np.minimum.at(out, flat, z.astype(np.float32))
+    out[np.isinf(out)] = 0.0
+    return out.reshape(height, width)
 
 
 #: Depth samples within this relative spread of the nearest are one surface; wider is a step. On the real

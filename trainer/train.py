@@ -49,8 +49,8 @@ from trainer.devices import (
     setup_distributed,
     unwrap,
 )
-from trainer.evaluate import evaluate_frames
-from trainer.gan import Precision, build_networks, gan_step
+from trainer.evaluate import Predictor, evaluate_frames, model_camera
+from trainer.gan import Autocast, build_networks, gan_step
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.losses import GANLoss
 from trainer.networks import GlobalGenerator
@@ -115,16 +115,12 @@ def training_loader(config: RunConfig, ddp: Distributed, start_step: int, pin_me
 def score_generator(
     generator: GlobalGenerator, config: RunConfig, frames: ConcatFrames
 ) -> tuple[dict, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-    """Validation: the generator run as export will run it (its inference settings), on ``frames``."""
+    """Validation: the generator run as export will run it (its inference settings, at its card's camera)."""
     generator.eval()
     runner = EagerGenerator(InferenceGraph(generator, config.inference), config.generator.input_multiple)
+    predict = Predictor(lambda rgb: config.depth.decode(runner.predict_raw(rgb)), model_camera(config), "validation")
     result, _, grid = evaluate_frames(
-        lambda rgb: config.depth.decode(runner.predict_raw(rgb)),
-        frames,
-        min_m=config.data.eval_min_m,
-        max_m=config.data.eval_max_m,
-        scale=config.data.val_scale,
-        samples=4,
+        predict, frames, min_m=config.data.eval_min_m, max_m=config.data.eval_max_m, samples=4
     )
     generator.train()
     return result, grid
@@ -145,7 +141,7 @@ class Run:
     opt_g: torch.optim.Adam
     opt_d: torch.optim.Adam
     scaler: torch.amp.GradScaler
-    precision: Precision
+    autocast: Autocast
     step: int = 0
     best: Best | None = None
     train_seconds: float = 0.0
@@ -198,9 +194,9 @@ def start_run(config: RunConfig, resume: bool, ddp: Distributed) -> Run:
     if config.train.threads:
         torch.set_num_threads(config.train.threads)
     generator, discriminator, opt_g, opt_d = build_networks(config, device)
-    precision = Precision.for_device(device, config.train.amp)
-    scaler = torch.amp.GradScaler(device.type, enabled=precision.scaled)
-    run = Run(config, ddp, device, generator, discriminator, opt_g, opt_d, scaler, precision)
+    autocast = Autocast.for_device(device, config.train.amp)
+    scaler = torch.amp.GradScaler(device.type, enabled=autocast.scaled)
+    run = Run(config, ddp, device, generator, discriminator, opt_g, opt_d, scaler, autocast)
     if resume:
         saved = load_checkpoint(run.out / "checkpoints" / "last.pt")
         _check_resumable(saved.config, config)
@@ -268,7 +264,7 @@ def train_step(
     torch.manual_seed(step_seed(run.config.train.seed, step, run.ddp.rank))
     batch = {k: v.to(run.device, non_blocking=True) for k, v in batch.items()}
     networks, optimisers = (run.generator, run.discriminator), (run.opt_g, run.opt_d)
-    losses = gan_step(*networks, optimisers, run.scaler, gan_loss, run.config.loss, batch, run.precision)
+    losses = gan_step(*networks, optimisers, run.scaler, gan_loss, run.config.loss, batch, run.autocast)
     return losses, time.perf_counter() - tick, batch["rgb"].shape[0] * run.ddp.world_size
 
 

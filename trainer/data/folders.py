@@ -34,6 +34,9 @@ INTRINSICS_FILE = "intrinsics.json"
 PAIR_TOLERANCE = 0.02
 
 
+INTRINSIC_KEYS = ("fx", "fy", "cx", "cy")
+
+
 @dataclass(frozen=True)
 class CameraFile:
     """What ``intrinsics.json`` (and the command line) say about the camera and the depth units."""
@@ -48,6 +51,15 @@ class CameraFile:
         """These values with every value ``overrides`` sets taking precedence."""
         pick = {k: v if v is not None else getattr(self, k) for k, v in vars(overrides).items()}
         return CameraFile(**pick)
+
+    def applied_to(self, camera: Intrinsics) -> Intrinsics:
+        """``camera`` with each intrinsic this sets in its place: overrides in the pixels of ``camera``'s image."""
+        values = {k: getattr(self, k) if getattr(self, k) is not None else getattr(camera, k) for k in INTRINSIC_KEYS}
+        return Intrinsics(**values, width=camera.width, height=camera.height)
+
+    @property
+    def sets_intrinsics(self) -> bool:
+        return any(getattr(self, k) is not None for k in INTRINSIC_KEYS)
 
     def intrinsics(self, width: int, height: int, where: Path) -> Intrinsics:
         """The camera for a ``width`` x ``height`` photo; UserError naming ``where`` if a value is missing."""

@@ -19,13 +19,14 @@ from PIL import Image
 from contract.errors import UserError
 from trainer.config import DataSource
 from trainer.data.folders import CameraFile, FoldersReader, colour_folder, is_folders_layout, select_frames
-from trainer.data.frames import Frame, FrameReader, PairsReader, RecordedPair
+from trainer.data.frames import DEFAULT_MAX_FRAMES, Frame, FrameReader, PairsReader, RecordedPair, spread
 from trainer.data.manifest import ManifestReader
 from trainer.data.nyu import NyuReader
+from trainer.data.phone_frames import DEFAULT_MIN_CONFIDENCE, PhoneOptions
 from trainer.data.record3d import is_record3d, read_record3d
-from trainer.data.rosbag import DEFAULT_MAX_GAP_S, is_bag, read_bag
+from trainer.data.rosbag import DEFAULT_MAX_GAP_S, BagOptions, is_bag, read_bag
 from trainer.data.sevenscenes import SevenScenesReader
-from trainer.data.strayscanner import DEFAULT_MIN_CONFIDENCE, is_stray_scanner, read_stray_scanner
+from trainer.data.strayscanner import is_stray_scanner, read_stray_scanner
 from trainer.data.tum import TumReader
 from trainer.registration import ColourCamera, register_frame
 
@@ -44,6 +45,8 @@ class ReadOptions:
     max_gap_s: float = DEFAULT_MAX_GAP_S
     min_confidence: int = DEFAULT_MIN_CONFIDENCE
     every: int = 1
+    #: At most this many pairs, evenly spread (None or 0: all); readers that write frames write only these.
+    max_frames: int | None = DEFAULT_MAX_FRAMES
 
 
 @dataclass
@@ -92,7 +95,8 @@ def detect_format(root: Path) -> str:
     raise UserError(
         f"{root}: cannot tell its layout (found {', '.join(found) or 'nothing'}); expected color/ (or rgb/, "
         "image/) and depth/ folders, a TUM sequence (rgb.txt, depth.txt), 7-Scenes frame-NNNNNN.color.jpg "
-        "files, a ROS 2 bag folder (metadata.yaml), a .csv manifest or an NYU .mat; or pass --format"
+        "files, a ROS 2 bag folder (metadata.yaml), a Stray Scanner export (rgb.mp4, depth/, camera_matrix.csv), "
+        "a Record3D .r3d, a .csv manifest or an NYU .mat; or pass --format"
     )
 
 
@@ -118,9 +122,9 @@ def open_pairs(root: Path, format: str, options: ReadOptions, scratch: Path | No
         reader = SevenScenesReader(root)
     else:
         reader = _nyu_files(root, Path(scratch) / "nyu-frames")
-    if format != "folders":  # the folders reader merges the camera with its intrinsics.json itself
-        # Frames written out here are in millimetres whatever the recording's units were.
-        camera = replace(options.camera, depth_scale=None) if format in (*WRITTEN, "nyu") else options.camera
+    if format not in ("folders", *WRITTEN):  # folders merge with intrinsics.json; written readers take it first
+        # NYU's frames are written out in millimetres whatever the recording's units were.
+        camera = replace(options.camera, depth_scale=None) if format == "nyu" else options.camera
         reader.pairs = [_overridden(p, camera) for p in reader.pairs]
     return reader
 
@@ -131,9 +135,12 @@ def open_recording(root: Path, format: str | None, options: ReadOptions, scratch
     format = format or detect_format(root)
     reader = open_pairs(root, format, options, scratch)
     pairs, notes = reader.pairs, list(reader.notes)
-    if options.every > 1 and format not in WRITTEN:  # written readers thin before they write
-        pairs = pairs[:: options.every]
-        notes.append(f"every {options.every}th pair kept: {len(pairs)}")
+    if format not in WRITTEN:  # written readers thin before they write
+        kept = spread(pairs[:: options.every], options.max_frames)
+        if len(kept) < len(pairs):
+            capped = f", capped at {len(kept)} evenly spread (--max-frames; 0 keeps all)" if options.max_frames else ""
+            notes.append(f"kept {len(kept)} of {len(pairs)} pairs: every {options.every}th{capped}")
+        pairs = kept
     return Recording(root, format, pairs, reader.skipped, reader.licence or None, notes)
 
 
@@ -148,11 +155,19 @@ def _overridden(pair: RecordedPair, camera: CameraFile) -> RecordedPair:
 
 
 def _written(root: Path, format: str, options: ReadOptions, out: Path) -> PairsReader:
-    """A recording whose reader writes its frames out first: a ROS bag, a Stray Scanner or Record3D export."""
+    """A recording whose reader writes its frames out first: a ROS bag, a Stray Scanner or Record3D export.
+
+    ``options.camera`` goes to the reader, which applies it to the recording's own camera (in the pixels of
+    the images as recorded) before it registers, resizes or writes anything.
+    """
     if format == "rosbag":
-        return read_bag(root, out, options.color_topic, options.depth_topic, options.max_gap_s, options.every)
+        topics = (options.color_topic, options.depth_topic)
+        bag = BagOptions(*topics, options.max_gap_s, options.every, options.max_frames, options.camera)
+        return read_bag(root, out, bag)
+    if options.camera.depth_scale is not None:
+        raise UserError(f"{root}: --depth-scale does not apply to a {format} export: its format fixes the depth units")
     read = read_stray_scanner if format == "strayscanner" else read_record3d
-    return read(root, out, options.every, options.min_confidence)
+    return read(root, out, PhoneOptions(options.every, options.max_frames, options.min_confidence, options.camera))
 
 
 def _nyu_files(root: Path, folder: Path) -> PairsReader:

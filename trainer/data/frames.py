@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, TypeVar
 
 import numpy as np
 from PIL import Image
@@ -12,8 +13,16 @@ from PIL import Image
 from contract.errors import UserError
 from contract.geometry import Intrinsics
 
+T = TypeVar("T")
+
 #: Raw depth values that mean "no reading" in Kinect-style 16-bit PNGs.
 MISSING_RAW = (0, 65535)
+#: The pixels fit trains a recording at (the service's 640x480): larger recordings are scaled to it.
+TRAINED_PIXELS = 640 * 480
+#: How many frames of a long recording fit keeps by default, evenly spread. A 30-minute fit on 2 CPU cores
+#: trains about 1,650 steps of 4 views (docs/fit.md): about 6,600 views, so 600 frames are each seen about
+#: 11 times, and a frame beyond them would be seen a handful of times while costing its decode and write.
+DEFAULT_MAX_FRAMES = 600
 
 
 @dataclass
@@ -96,6 +105,13 @@ class PairsReader:
 
 #: Raw units per metre of the depth PNGs readers write out (a bag's messages, a phone's maps).
 WRITTEN_DEPTH_SCALE = 1000.0
+
+
+def spread(items: Sequence[T], count: int | None) -> list[T]:
+    """At most ``count`` of ``items`` (all when ``count`` is None or 0), evenly spread from the first to the last."""
+    if not count or len(items) <= count:
+        return list(items)
+    return [items[i] for i in np.linspace(0, len(items) - 1, count).round().astype(int)]
 
 
 def written_pairs(

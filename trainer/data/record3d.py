@@ -9,8 +9,8 @@ An ``.r3d`` file is a zip holding:
 - ``rgbd/N.conf``: its confidence (0, 1 or 2 per depth pixel), LZFSE-compressed uint8.
 
 Depth covers the same view as the photo at a coarser grid, so it is upsampled as a Stray Scanner
-recording's is (``trainer.registration.upsample_depth``), and photos are written at most
-1280x960, with the intrinsics scaled to match.
+recording's is, by the same writer (``trainer.data.phone_frames``): at the size fit trains at, with
+the intrinsics scaled to match, and of a long recording an evenly spread cap of frames.
 """
 
 from __future__ import annotations
@@ -26,61 +26,58 @@ from PIL import Image
 from contract.errors import UserError
 from contract.geometry import Intrinsics
 from trainer.data.frames import PairsReader, written_pairs
-from trainer.data.strayscanner import DEFAULT_MIN_CONFIDENCE, MAX_WRITTEN_PIXELS
-from trainer.registration import upsample_depth
+from trainer.data.phone_frames import FrameWriter, PhoneOptions
 
 
 def is_record3d(path: Path) -> bool:
     return Path(path).is_file() and Path(path).suffix.lower() == ".r3d"
 
 
-def read_record3d(path: Path, out: Path, every: int = 1, min_confidence: int = DEFAULT_MIN_CONFIDENCE) -> PairsReader:
-    """Every ``every``-th frame, written under ``out`` as colour JPEG and 16-bit millimetre PNG."""
+def read_record3d(path: Path, out: Path, options: PhoneOptions | None = None) -> PairsReader:
+    """The kept frames, written under ``out`` as colour JPEG and 16-bit millimetre PNG."""
     path, out = Path(path), Path(out)
     try:
         with zipfile.ZipFile(path) as archive:
-            return _read(archive, path, out, every, min_confidence)
+            return _read(archive, path, out, options or PhoneOptions())
     except (zipfile.BadZipFile, EOFError) as e:
         raise UserError(f"{path}: not a complete .r3d (zip) file: {e}") from None
 
 
-def _read(archive: zipfile.ZipFile, path: Path, out: Path, every: int, min_confidence: int) -> PairsReader:
+def _read(archive: zipfile.ZipFile, path: Path, out: Path, options: PhoneOptions) -> PairsReader:
     metadata = _metadata(archive, path)
-    k = np.asarray(metadata["K"], dtype=np.float64).reshape(3, 3).T  # stored column-major
-    width, height, depth_size = int(metadata["w"]), int(metadata["h"]), (int(metadata["dh"]), int(metadata["dw"]))
-    scale = min(1.0, float(np.sqrt(MAX_WRITTEN_PIXELS / (width * height))))
-    size = (round(width * scale), round(height * scale))
-    camera = Intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], width, height).resized(*size)
+    width, height, depth_size = metadata["w"], metadata["h"], (metadata["dh"], metadata["dw"])
+    writer = FrameWriter(out, width, height)
+    camera = writer.camera(options.camera.applied_to(_intrinsics(path, metadata["K"], width, height)))
     names = {info.filename for info in archive.infolist()}
     numbers = sorted(int(n[5:-4]) for n in names if n.startswith("rgbd/") and n.endswith(".jpg") and n[5:-4].isdigit())
     if not numbers:
         raise UserError(f"{path}: no rgbd/N.jpg photos inside")
-    (out / "color").mkdir(parents=True, exist_ok=True)
-    (out / "depth").mkdir(parents=True, exist_ok=True)
     pairs, skipped, kept = [], [], []
     fps = float(metadata.get("fps") or 0) or None
-    for number in numbers[:: max(1, every)]:
+    wanted = options.kept(numbers)
+    for number in wanted:
         if f"rgbd/{number}.depth" not in names:
             skipped.append((str(number), "no rgbd/N.depth beside the photo"))
             continue
-        with Image.open(io.BytesIO(archive.read(f"rgbd/{number}.jpg"))) as im:
-            photo = np.asarray(im.convert("RGB").resize(size, Image.BILINEAR))
+        try:
+            with Image.open(io.BytesIO(archive.read(f"rgbd/{number}.jpg"))) as im:
+                photo = im.convert("RGB")
+        except (OSError, ValueError, SyntaxError) as e:
+            skipped.append((str(number), f"rgbd/{number}.jpg is damaged: {e}"))
+            continue
         depth = _lzfse(archive, path, f"rgbd/{number}.depth", np.float32, depth_size)
         depth = np.where(np.isfinite(depth), depth, 0).astype(np.float32)
         if f"rgbd/{number}.conf" in names:
             confidence = _lzfse(archive, path, f"rgbd/{number}.conf", np.uint8, depth_size)
-            depth = np.where(confidence >= min_confidence, depth, 0).astype(np.float32)
+            depth = np.where(confidence >= options.min_confidence, depth, 0).astype(np.float32)
         kept.append(float((depth > 0).mean()))
-        name = f"{number / fps:.6f}" if fps else f"{number:06d}"
-        millimetres = np.clip(np.rint(upsample_depth(depth, photo) * 1000.0), 0, 65535).astype(np.uint16)
-        Image.fromarray(photo).save(out / "color" / f"{name}.jpg", quality=95)
-        Image.fromarray(millimetres).save(out / "depth" / f"{name}.png")
-        pairs.append((name, out / "color" / f"{name}.jpg", out / "depth" / f"{name}.png"))
+        pairs.append(writer.write(f"{number / fps:.6f}" if fps else f"{number:06d}", photo, depth))
     notes = [
-        f"record3d: {len(numbers)} frames, photos {width}x{height} written at {size[0]}x{size[1]}, depth "
-        f"{depth_size[1]}x{depth_size[0]}" + (f", every {every}th frame" if every > 1 else ""),
-        f"depth: confidence {min_confidence} and up kept, {100 * float(np.mean(kept or [0])):.0f}% of depth pixels; "
-        "upsampled without blending across depth steps",
+        f"record3d: {len(numbers)} frames, photos {width}x{height} written at {camera.width}x{camera.height}, "
+        f"depth {depth_size[1]}x{depth_size[0]}",
+        options.note(len(numbers), len(wanted)),
+        f"depth: confidence {options.min_confidence} and up kept, {100 * float(np.mean(kept or [0])):.0f}% of depth "
+        "pixels; upsampled without blending across depth steps",
     ]
     return written_pairs(path.stem, pairs, camera, skipped, notes)
 
@@ -92,10 +89,27 @@ def _metadata(archive: zipfile.ZipFile, path: Path) -> dict:
         raise UserError(f"{path}: no metadata inside; not a Record3D export") from None
     except json.JSONDecodeError as e:
         raise UserError(f"{path}: its metadata is not JSON: {e}") from None
+    if not isinstance(metadata, dict):
+        raise UserError(f"{path}: its metadata is not a JSON object")
     missing = [key for key in ("K", "w", "h", "dw", "dh") if key not in metadata]
     if missing:
         raise UserError(f"{path}: its metadata lacks {', '.join(missing)}")
+    for key in ("w", "h", "dw", "dh"):
+        value = metadata[key]
+        if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
+            raise UserError(f"{path}: its metadata's {key} is {value!r}, not a positive whole number of pixels")
     return metadata
+
+
+def _intrinsics(path: Path, k: object, width: int, height: int) -> Intrinsics:
+    """The metadata's ``K`` (9 numbers, column-major) as the photos' camera; one line naming the file if malformed."""
+    try:
+        matrix = np.asarray(k, dtype=np.float64).reshape(3, 3).T  # stored column-major
+    except (TypeError, ValueError):
+        raise UserError(f"{path}: its metadata's K is {str(k)[:80]}, not 9 numbers (a 3x3 matrix)") from None
+    if not (np.isfinite(matrix).all() and matrix[0, 0] > 0 and matrix[1, 1] > 0):
+        raise UserError(f"{path}: its metadata's K has no positive focal lengths: {matrix.T.ravel().tolist()}")
+    return Intrinsics(matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2], width, height)
 
 
 def _lzfse(archive: zipfile.ZipFile, path: Path, member: str, dtype: type, shape: tuple[int, int]) -> np.ndarray:

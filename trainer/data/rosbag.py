@@ -21,10 +21,9 @@ Units" option in the bag says otherwise; ``32FC1`` is metres.
 
 from __future__ import annotations
 
-import io
 import statistics
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -33,16 +32,24 @@ import numpy as np
 from PIL import Image
 
 from contract.errors import UserError
-from contract.geometry import Intrinsics
-from trainer.data.frames import PairsReader, written_pairs
+from trainer.data.folders import CameraFile
+from trainer.data.frames import DEFAULT_MAX_FRAMES, PairsReader, spread, written_pairs
+from trainer.data.rosbag_cameras import Geometry, camera_info_lens, same_camera
 from trainer.data.rosbag_extrinsics import depth_to_colour_extrinsics
+from trainer.data.rosbag_images import (
+    COLOUR_ENCODINGS,
+    COMPRESSED,
+    DEPTH_ENCODINGS,
+    FRAME_DAMAGE,
+    IMAGE,
+    colour_image,
+    decoded,
+    depth_image,
+    message_size,
+)
 from trainer.registration import reproject_depth
 
-IMAGE = "sensor_msgs/msg/Image"
-COMPRESSED = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
-COLOUR_ENCODINGS = {"rgb8": (3, False), "bgr8": (3, True), "rgba8": (4, False), "bgra8": (4, True), "mono8": (1, False)}
-DEPTH_ENCODINGS = {"16UC1": np.uint16, "mono16": np.uint16, "32FC1": np.float32}
 #: Colour and depth stamped further apart than this are not a pair (a 30 fps stream's frames are 33 ms apart).
 DEFAULT_MAX_GAP_S = 0.02
 #: Millimetres, what the pairs' depth files hold.
@@ -51,13 +58,19 @@ DEPTH_SCALE = 1000.0
 
 @dataclass(frozen=True)
 class Stream:
-    """One image topic: its type, frame count, first message's encoding, and the CameraInfo beside it."""
+    """One image topic: its type, frame count, first message's encoding and size."""
 
     topic: str
     msgtype: str
     count: int
     encoding: str
-    info_topic: str | None = None
+    width: int
+    height: int
+
+    @property
+    def image(self) -> tuple[str, int, int]:
+        """The topic and its images' width and height."""
+        return self.topic, self.width, self.height
 
     @property
     def is_depth(self) -> bool:
@@ -68,23 +81,6 @@ class Stream:
         if self.msgtype == COMPRESSED:
             return not self.is_depth and "depth" not in self.topic.lower()
         return self.encoding in COLOUR_ENCODINGS and not any(w in self.topic.lower() for w in ("infra", "/ir"))
-
-
-@dataclass(frozen=True)
-class Geometry:
-    """How a depth frame becomes depth in the colour camera: both cameras, the rigid transform, the units."""
-
-    depth_camera: Intrinsics
-    colour_camera: Intrinsics
-    rotation: np.ndarray
-    translation: np.ndarray
-    units_m: float
-
-    @property
-    def moves(self) -> bool:
-        """Whether depth must be reprojected at all (not when it is already in the colour camera)."""
-        identity = np.allclose(self.rotation, np.eye(3)) and np.allclose(self.translation, 0)
-        return not (identity and _same_camera(self.depth_camera, self.colour_camera))
 
 
 def is_bag(path: Path) -> bool:
@@ -103,97 +99,138 @@ def _bag_path(path: Path) -> Path:
     return path
 
 
-def read_bag(
-    path: Path,
-    out_dir: Path,
-    color_topic: str | None = None,
-    depth_topic: str | None = None,
-    max_gap_s: float = DEFAULT_MAX_GAP_S,
-    every: int = 1,
-) -> PairsReader:
-    """The bag's colour frames with their nearest depth, depth in the colour camera, written under ``out_dir``."""
+@dataclass(frozen=True)
+class BagOptions:
+    """Which topics, how close in time a pair must be, which colour frames to keep, and camera overrides.
+
+    ``camera`` (``--fx`` ... ``--depth-scale``) is applied to the colour camera's CameraInfo, in the
+    pixels of its images, and to the depth units, before any frame is registered or written.
+    """
+
+    color_topic: str | None = None
+    depth_topic: str | None = None
+    max_gap_s: float = DEFAULT_MAX_GAP_S
+    every: int = 1
+    max_frames: int | None = DEFAULT_MAX_FRAMES
+    camera: CameraFile = field(default_factory=CameraFile)
+
+
+def read_bag(path: Path, out_dir: Path, options: BagOptions | None = None) -> PairsReader:
+    """The bag's colour frames with their nearest depth, depth in the colour camera, written under ``out_dir``.
+
+    A bag can be damaged in any byte (a recorder killed mid-write, a disk error): whatever its parser
+    raises is one line that names the bag, never a traceback.
+    """
     from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.typesys import Stores, get_typestore
 
+    options = options or BagOptions()
     source = _bag_path(path)
     try:
         with AnyReader([source], default_typestore=get_typestore(Stores.LATEST)) as reader:
-            return _read(reader, Path(path), Path(out_dir), color_topic, depth_topic, max_gap_s, every)
+            return _read(reader, Path(path), Path(out_dir), options)
+    except UserError:
+        raise
     except AnyReaderError as e:
         raise UserError(f"{path}: not a readable ROS bag: {e}") from None
+    except Exception as e:  # a damaged bag reaches any corner of the parsers
+        detail = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
+        raise UserError(f"{path}: damaged, it cannot be read on ({detail})") from None
 
 
-def _read(reader: Any, path: Path, out: Path, color_topic, depth_topic, max_gap_s, every) -> PairsReader:
+def _read(reader: Any, path: Path, out: Path, options: BagOptions) -> PairsReader:
     streams = _streams(reader)
-    colour = _choose(path, streams, color_topic, "colour", lambda s: s.is_colour, ("color", "colour", "rgb"))
-    depth = _choose(path, streams, depth_topic, "depth", lambda s: s.is_depth, ("aligned_depth_to_color", "depth"))
-    colour_info, depth_info = (_camera_info(reader, path, s) for s in (colour, depth))
-    colour_camera, depth_camera = (_intrinsics(info) for info in (colour_info, depth_info))
+    colour = _choose(path, streams, options.color_topic, "colour", ("color", "colour", "rgb"))
+    depth = _choose(path, streams, options.depth_topic, "depth", ("aligned_depth_to_color", "depth"))
+    (colour_topic, colour_info), (depth_topic, depth_info) = (_camera_info(reader, path, s) for s in (colour, depth))
+    notes: list[str] = []
+    colour_lens = camera_info_lens(path, colour_topic, colour_info, colour.image, notes, options.camera)
+    depth_lens = camera_info_lens(path, depth_topic, depth_info, depth.image, notes, CameraFile())
+    if options.camera.sets_intrinsics:
+        k = colour_lens.camera
+        notes.append(f"colour camera with the command line's: fx {k.fx:g}, fy {k.fy:g}, cx {k.cx:g}, cy {k.cy:g}")
     stamps = {s.topic: _stamps(reader, s.topic) for s in (colour, depth)}
-    colour_stamps = dict(list(enumerate(stamps[colour.topic]))[:: max(1, every)])
-    matches, skipped = _pair(colour_stamps, stamps[depth.topic], max_gap_s)
+    every = list(enumerate(stamps[colour.topic]))[:: max(1, options.every)]
+    colour_stamps = dict(spread(every, options.max_frames))
+    matches, skipped = _pair(colour_stamps, stamps[depth.topic], options.max_gap_s)
     if not matches:
         nearest = min((why for _, why in skipped), default="no colour frames", key=len)
         raise UserError(
-            f"{path}: no colour frame of {colour.topic} has depth from {depth.topic} within {max_gap_s * 1000:.0f} ms "
-            f"({len(colour_stamps)} colour, {len(stamps[depth.topic])} depth frames; e.g. {nearest}); "
-            "pass --max-gap-ms to allow more"
+            f"{path}: no colour frame of {colour.topic} has depth from {depth.topic} within "
+            f"{options.max_gap_s * 1000:.0f} ms ({len(colour_stamps)} colour, {len(stamps[depth.topic])} depth "
+            f"frames; e.g. {nearest}); pass --max-gap-ms to allow more"
         )
-    aligned = _same_camera(colour_camera, depth_camera) or "aligned_depth_to_color" in depth.topic
+    aligned = same_camera(colour_lens.camera, depth_lens.camera) or "aligned_depth_to_color" in depth.topic
     transform, how = (np.eye(3), np.zeros(3)), "depth is aligned to colour in the bag"
     if not aligned:
         topics = sorted({(c.topic, c.msgtype) for c in reader.connections})
         frames = (depth_info.header.frame_id, colour_info.header.frame_id)
         read = partial(_topic_messages, reader)
         transform, how = depth_to_colour_extrinsics(read, topics, depth.topic, colour.topic, *frames)
-    units = _depth_units_m(reader, depth)
-    pairs = _write_pairs(reader, out, colour, depth, matches, Geometry(depth_camera, colour_camera, *transform, units))
+    units = _depth_units_m(path, reader, depth, options.camera.depth_scale)
+    geometry = Geometry(depth_lens, colour_lens, *transform, units)
+    pairs, damaged = _write_pairs(reader, out, colour, depth, matches, geometry)
     gaps_ms = [abs(c - d) * 1000 for c, d in matches.values()]
     notes = [
         f"bag: colour {colour.topic} ({colour.encoding}, {colour.count} frames{_rate(stamps[colour.topic])}), "
         f"depth {depth.topic} ({depth.encoding}, {depth.count} frames{_rate(stamps[depth.topic])}), "
         f"depth unit {units * 1000:g} mm",
-        f"paired within {max_gap_s * 1000:.0f} ms: {len(matches)} of {len(colour_stamps)} colour frames"
-        + (f" (every {every}th)" if every > 1 else "")
+        f"paired within {options.max_gap_s * 1000:.0f} ms: {len(matches)} of {len(colour_stamps)} colour frames"
+        + (f" (every {options.every}th)" if options.every > 1 else "")
+        + (f" (capped at {len(colour_stamps)} evenly spread, --max-frames)" if len(colour_stamps) < len(every) else "")
         + f", gap median {statistics.median(gaps_ms):.1f} ms, max {max(gaps_ms):.1f} ms",
         f"registration: {how}",
+        *notes,
     ]
-    return written_pairs(path.name, pairs, colour_camera, skipped, notes)
+    if damaged:
+        notes.append(
+            f"damaged frames skipped: {len(damaged)} ({', '.join(name for name, _ in damaged[:3])}"
+            + (", ..." if len(damaged) > 3 else "")
+            + ")"
+        )
+    return written_pairs(path.name, pairs, colour_lens.camera, skipped + damaged, notes)
 
 
 def _streams(reader: Any) -> list[Stream]:
-    """Every image topic with the encoding of its first message."""
+    """Every image topic with the encoding and size of its first message."""
     found = []
     for topic in sorted({c.topic for c in reader.connections if c.msgtype in (IMAGE, COMPRESSED)}):
         connections = [c for c in reader.connections if c.topic == topic]
         for connection, _, raw in reader.messages(connections=connections):
             message = reader.deserialize(raw, connection.msgtype)
             encoding = message.encoding if connection.msgtype == IMAGE else message.format
+            width, height = message_size(message, connection.msgtype)
             count = sum(c.msgcount for c in connections)
-            found.append(Stream(topic, connection.msgtype, count, encoding))
+            found.append(Stream(topic, connection.msgtype, count, encoding, width, height))
             break
     return found
 
 
-def _choose(
-    path: Path,
-    streams: list[Stream],
-    wanted: str | None,
-    kind: str,
-    fits: Callable[[Stream], bool],
-    preferred: tuple[str, ...],
-) -> Stream:
-    """The stream ``wanted`` names, else the one of this kind whose name is most preferred."""
+def _choose(path: Path, streams: list[Stream], wanted: str | None, kind: str, preferred: tuple[str, ...]) -> Stream:
+    """The stream ``wanted`` names (checked to be of this kind), else the one whose name is most preferred.
+
+    Among equally named candidates a rectified topic (``image_rect``) wins over a raw one: its lens
+    distortion is already undone.
+    """
+    flag = "--color-topic" if kind == "colour" else "--depth-topic"
+    fits = (lambda s: s.is_colour) if kind == "colour" else (lambda s: s.is_depth)
     if wanted is not None:
         named = [s for s in streams if s.topic == wanted]
         if not named:
             listed = ", ".join(s.topic for s in streams) or "none"
             raise UserError(f"{path}: no image topic {wanted!r} (image topics: {listed})")
+        if not fits(named[0]):
+            other = "depth" if named[0].is_depth else "colour" if named[0].is_colour else "of an unsupported kind"
+            raise UserError(
+                f"{path}: {flag} {wanted}: its images are {other} ({named[0].encoding}), not {kind}; colour is one "
+                f"of {', '.join(COLOUR_ENCODINGS)} or compressed, depth one of {', '.join(DEPTH_ENCODINGS)} or "
+                "compressedDepth"
+            )
         return named[0]
     candidates = [s for s in streams if fits(s)]
     if not candidates:
         listed = ", ".join(f"{s.topic} ({s.encoding})" for s in streams) or "none"
-        raise UserError(f"{path}: no {kind} image topic (image topics: {listed}); pass --{kind[:5]}-topic")
+        raise UserError(f"{path}: no {kind} image topic (image topics: {listed}); pass {flag}")
     for word in preferred:
         named = [s for s in candidates if word in s.topic.lower()]
         if len(named) == 1:
@@ -201,9 +238,11 @@ def _choose(
         if named:
             candidates = named
             break
+    rectified = [s for s in candidates if "rect" in s.topic.lower()]
+    if len(rectified) == 1:
+        return rectified[0]
     if len(candidates) > 1:
         listed = ", ".join(s.topic for s in candidates)
-        flag = "--color-topic" if kind == "colour" else "--depth-topic"
         raise UserError(f"{path}: several {kind} topics ({listed}); pass {flag}")
     return candidates[0]
 
@@ -224,19 +263,8 @@ def _camera_info(reader: Any, path: Path, stream: Stream) -> Any:
     if best is None or shared(best.topic) == 0:
         raise UserError(f"{path}: no CameraInfo for {stream.topic}: record its camera_info topic too")
     for connection, _, raw in reader.messages(connections=[best]):
-        return reader.deserialize(raw, connection.msgtype)
+        return best.topic, reader.deserialize(raw, connection.msgtype)
     raise UserError(f"{path}: {best.topic} holds no CameraInfo message")
-
-
-def _intrinsics(info: Any) -> Intrinsics:
-    k = np.asarray(info.k if hasattr(info, "k") else info.K, dtype=np.float64).reshape(3, 3)  # ROS 2 | ROS 1
-    return Intrinsics(float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]), int(info.width), int(info.height))
-
-
-def _same_camera(a: Intrinsics, b: Intrinsics) -> bool:
-    return (a.width, a.height) == (b.width, b.height) and np.allclose(
-        [a.fx, a.fy, a.cx, a.cy], [b.fx, b.fy, b.cx, b.cy], rtol=1e-4
-    )
 
 
 def _stamp(message: Any, bag_ns: int) -> float:
@@ -287,10 +315,15 @@ def _pair(
     return matches, skipped
 
 
-def _depth_units_m(reader: Any, depth: Stream) -> float:
-    """Metres per raw unit: a RealSense "Depth Units" option in the depth sensor's namespace, else REP 118."""
+def _depth_units_m(path: Path, reader: Any, depth: Stream, depth_scale: float | None) -> float:
+    """Metres per raw unit: ``--depth-scale``, else a RealSense "Depth Units" option in the depth sensor's
+    namespace, else REP 118 (millimetres); float depth is metres, and a depth scale for it is refused."""
     if "32FC1" in depth.encoding:
+        if depth_scale is not None:
+            raise UserError(f"{path}: --depth-scale: {depth.topic} holds 32FC1 depth, which is metres by definition")
         return 1.0
+    if depth_scale is not None:
+        return 1.0 / depth_scale
     sensor = depth.topic.split("/")[:3]  # /device_0/sensor_N
     option = "/".join([*sensor, "option", "Depth Units", "value"])
     for _, _, message in _messages(reader, option):
@@ -298,41 +331,14 @@ def _depth_units_m(reader: Any, depth: Stream) -> float:
     return 0.001
 
 
-def _colour_image(message: Any, msgtype: str) -> tuple[bytes, str] | np.ndarray:
-    """A compressed frame's bytes and file suffix as stored, or a raw frame as HxWx3 uint8 RGB."""
-    if msgtype == COMPRESSED:
-        data = bytes(message.data)
-        return data, ".png" if data[:8] == b"\x89PNG\r\n\x1a\n" else ".jpg"
-    channels, bgr = COLOUR_ENCODINGS[message.encoding]
-    rows = np.frombuffer(bytes(message.data), np.uint8).reshape(message.height, message.step)
-    pixels = rows[:, : message.width * channels].reshape(message.height, message.width, channels)
-    if channels == 1:
-        return np.repeat(pixels, 3, axis=2)
-    rgb = pixels[..., :3]
-    return np.ascontiguousarray(rgb[..., ::-1] if bgr else rgb)
-
-
-def _depth_image(message: Any, msgtype: str, units_m: float) -> np.ndarray:
-    """A depth frame in metres, float32 (0 where there is no reading)."""
-    if msgtype == COMPRESSED:  # image_transport's compressedDepth: a 12-byte header, then a 16-bit PNG
-        data = bytes(message.data)
-        start = data.find(b"\x89PNG\r\n\x1a\n")
-        if start < 0:
-            raise UserError(f"compressed depth format {message.format!r} is not PNG; record raw or compressedDepth png")
-        with Image.open(io.BytesIO(data[start:])) as im:
-            return np.asarray(im, dtype=np.float32) * units_m
-    dtype = np.dtype(DEPTH_ENCODINGS[message.encoding]).newbyteorder(">" if message.is_bigendian else "<")
-    rows = np.frombuffer(bytes(message.data), np.uint8).reshape(message.height, message.step)
-    values = rows[:, : message.width * dtype.itemsize].copy().view(dtype).reshape(message.height, message.width)
-    depth = values.astype(np.float32) * units_m
-    depth[~np.isfinite(depth)] = 0
-    return depth
-
-
 def _write_pairs(
     reader: Any, out: Path, colour: Stream, depth: Stream, matches: dict[int, tuple[float, float]], geometry: Geometry
-) -> list[tuple[str, Path, Path]]:
-    """Write each matched pair's colour (as stored, or PNG) and depth (16-bit mm in the colour camera)."""
+) -> tuple[list[tuple[str, Path, Path]], list[tuple[str, str]]]:
+    """Write each matched pair's colour (as stored, or PNG) and depth (16-bit mm in the colour camera).
+
+    Returns the pairs written and the damaged ones skipped, with why. A colour frame whose lens
+    distortion is undone is written as PNG.
+    """
     (out / "color").mkdir(parents=True, exist_ok=True)
     (out / "depth").mkdir(parents=True, exist_ok=True)
     wanted_colour = {i: f"{c:.6f}" for i, (c, _) in matches.items()}
@@ -340,13 +346,22 @@ def _write_pairs(
     for i, (_, d) in matches.items():
         wanted_depth.setdefault(d, []).append(wanted_colour[i])
     colour_files: dict[str, Path] = {}
+    damaged: dict[str, str] = {}
     index = -1
     for connection, _, message in _messages(reader, colour.topic):
         index += 1
         name = wanted_colour.get(index)
         if name is None:
             continue
-        image = _colour_image(message, connection.msgtype)
+        try:
+            image = colour_image(message, connection.msgtype)
+            if geometry.colour.model is not None:
+                image = geometry.colour.undistorted(decoded(image), nearest=False)
+            elif isinstance(image, tuple):
+                decoded(image)  # a photo that cannot be decoded is skipped here, not in training
+        except FRAME_DAMAGE as e:
+            damaged[name] = f"colour frame damaged: {e}"
+            continue
         if isinstance(image, tuple):
             data, suffix = image
             colour_files[name] = out / "color" / f"{name}{suffix}"
@@ -358,11 +373,20 @@ def _write_pairs(
         names = wanted_depth.get(_stamp(message, bag_ns))
         if not names:
             continue
-        metres = _depth_image(message, connection.msgtype, geometry.units_m)
+        try:
+            metres = geometry.depth.undistorted(depth_image(message, connection.msgtype, geometry.units_m), True)
+        except FRAME_DAMAGE as e:
+            damaged.update({name: f"depth frame damaged: {e}" for name in names})
+            continue
         if geometry.moves:
             g = geometry
-            metres = reproject_depth(metres, g.depth_camera, g.colour_camera, g.rotation, g.translation)
+            metres = reproject_depth(metres, g.depth.camera, g.colour.camera, g.rotation, g.translation)
         millimetres = np.clip(np.rint(metres * DEPTH_SCALE), 0, 65535).astype(np.uint16)
         for name in names:
             Image.fromarray(millimetres).save(out / "depth" / f"{name}.png")
-    return [(name, colour_files[name], out / "depth" / f"{name}.png") for name in wanted_colour.values()]
+    written = [
+        (name, colour_files[name], out / "depth" / f"{name}.png")
+        for name in wanted_colour.values()
+        if name not in damaged
+    ]
+    return written, sorted(damaged.items())

@@ -11,15 +11,16 @@ A Stray Scanner export is a folder (the app's format document, strayrobots/scann
 
 The video is decoded with PyAV: it gives every frame in order from FFmpeg's decoders (the app
 writes HEVC) without OpenCV's GUI and image-processing weight, and the wheel carries FFmpeg.
-Each kept frame is written at most 1280x960 (the video is larger than anything fit trains at),
-and its depth is upsampled to it by ``trainer.registration.upsample_depth``: smooth within a
-surface, and no depth invented across a step.
+Each kept frame is written at the size fit trains at, by the writer both phone readers share
+(``trainer.data.phone_frames``); of a long recording, an evenly spread cap of frames is kept.
 """
 
 from __future__ import annotations
 
 import csv
+from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from PIL import Image
@@ -27,17 +28,18 @@ from PIL import Image
 from contract.errors import UserError
 from contract.geometry import Intrinsics
 from trainer.data.frames import PairsReader, written_pairs
-from trainer.registration import upsample_depth
+from trainer.data.phone_frames import FrameWriter, PhoneOptions
 
-#: Frames are written at most this many pixels: more than fit trains at (640x480), less than the video.
-MAX_WRITTEN_PIXELS = 1280 * 960
-#: Depth pixels of lower confidence are dropped by default: ARKit's 2 is "high".
-DEFAULT_MIN_CONFIDENCE = 2
+if TYPE_CHECKING:
+    import av
 
 
 def is_stray_scanner(root: Path) -> bool:
+    """A Stray Scanner export: depth/ beside rgb.mp4, or beside the app's own camera_matrix.csv (so an export
+    whose video is missing is named as such, not as a folder of unknown layout)."""
     root = Path(root)
-    return root.is_dir() and (root / "rgb.mp4").is_file() and (root / "depth").is_dir()
+    has_video = (root / "rgb.mp4").is_file() or (root / "camera_matrix.csv").is_file()
+    return root.is_dir() and has_video and (root / "depth").is_dir()
 
 
 def read_camera_matrix(path: Path) -> np.ndarray:
@@ -69,42 +71,42 @@ def read_frame_times(path: Path) -> dict[int, float]:
     return times
 
 
-def read_stray_scanner(
-    root: Path, out: Path, every: int = 1, min_confidence: int = DEFAULT_MIN_CONFIDENCE
-) -> PairsReader:
-    """Every ``every``-th frame with depth, written under ``out`` as colour JPEG and 16-bit millimetre PNG."""
-    root, out = Path(root), Path(out)
+def read_stray_scanner(root: Path, out: Path, options: PhoneOptions | None = None) -> PairsReader:
+    """The kept frames with depth, written under ``out`` as colour JPEG and 16-bit millimetre PNG.
+
+    Only the kept frames are converted and written, and decoding stops after the last of them.
+    """
+    root, out, options = Path(root), Path(out), options or PhoneOptions()
+    if not (root / "rgb.mp4").is_file():
+        raise UserError(f"{root / 'rgb.mp4'}: missing; a Stray Scanner export holds its colour video there")
     matrix = read_camera_matrix(root / "camera_matrix.csv")
     times = read_frame_times(root / "odometry.csv")
     depths = {int(p.stem): p for p in (root / "depth").glob("*.png") if p.stem.isdigit()}
     if not depths:
         raise UserError(f"{root / 'depth'}: no NNNNNN.png depth maps")
-    wanted = sorted(depths)[:: max(1, every)]
-    (out / "color").mkdir(parents=True, exist_ok=True)
-    (out / "depth").mkdir(parents=True, exist_ok=True)
-    pairs, camera, kept_share, decoded = [], None, [], set()
-    for number, rgb in _frames(root / "rgb.mp4", set(wanted)):
+    wanted = options.kept(sorted(depths))
+    pairs, writer, kept_share, decoded = [], None, [], set()
+    video = _Video(root / "rgb.mp4")
+    for number, frame in video.frames(set(wanted)):
         decoded.add(number)
-        video_camera = _camera(matrix, rgb.shape[1], rgb.shape[0])
-        scale = min(1.0, float(np.sqrt(MAX_WRITTEN_PIXELS / (rgb.shape[0] * rgb.shape[1]))))
-        size = (round(rgb.shape[1] * scale), round(rgb.shape[0] * scale))
-        camera = video_camera.resized(*size)
-        photo = np.asarray(Image.fromarray(rgb).resize(size, Image.BILINEAR)) if scale < 1 else rgb
-        metres, share = _depth(root, number, min_confidence)
+        if writer is None:
+            writer = FrameWriter(out, frame.width, frame.height)
+            video_camera = options.camera.applied_to(_camera(matrix, frame.width, frame.height))
+        metres, share = _depth(root, number, options.min_confidence)
         kept_share.append(share)
-        millimetres = np.clip(np.rint(upsample_depth(metres, photo) * 1000.0), 0, 65535).astype(np.uint16)
         name = f"{times[number]:.6f}" if number in times else f"{number:06d}"
-        Image.fromarray(photo).save(out / "color" / f"{name}.jpg", quality=95)
-        Image.fromarray(millimetres).save(out / "depth" / f"{name}.png")
-        pairs.append((name, out / "color" / f"{name}.jpg", out / "depth" / f"{name}.png"))
-    if camera is None:
-        raise UserError(f"{root / 'rgb.mp4'}: no frame could be decoded")
-    skipped = [(f"{n:06d}", "the video has no frame with this number") for n in wanted if n not in decoded]
+        pairs.append(writer.write(name, frame.to_image(), metres))
+    if writer is None:
+        raise UserError(f"{root / 'rgb.mp4'}: no frame could be decoded{video.why}")
+    missing = "the video has no frame with this number" + video.why
+    skipped = [(f"{n:06d}", missing) for n in wanted if n not in decoded]
+    camera = writer.camera(video_camera)
     notes = [
-        f"stray scanner: {len(depths)} depth maps, video {rgb.shape[1]}x{rgb.shape[0]} written at "
-        f"{camera.width}x{camera.height}" + (f", every {every}th frame" if every > 1 else ""),
-        f"depth: confidence {min_confidence} and up kept, {100 * float(np.mean(kept_share)):.0f}% of depth pixels; "
-        f"upsampled from {metres.shape[1]}x{metres.shape[0]} without blending across depth steps",
+        f"stray scanner: {len(depths)} depth maps, video {video_camera.width}x{video_camera.height} written at "
+        f"{camera.width}x{camera.height}",
+        options.note(len(depths), len(wanted)),
+        f"depth: confidence {options.min_confidence} and up kept, {100 * float(np.mean(kept_share)):.0f}% of depth "
+        f"pixels; upsampled from {metres.shape[1]}x{metres.shape[0]} without blending across depth steps",
     ]
     return written_pairs(root.name, pairs, camera, skipped, notes)
 
@@ -128,17 +130,34 @@ def _depth(root: Path, number: int, min_confidence: int) -> tuple[np.ndarray, fl
     return depth, float((depth > 0).mean())
 
 
-def _frames(video: Path, wanted: set[int]):
-    """(frame number, HxWx3 uint8) for each wanted frame of the video, in order."""
-    import av
+class _Video:
+    """The colour video's frames in order, decoded with PyAV; where it ends early, ``why`` says so."""
 
-    try:
-        with av.open(str(video)) as container:
-            stream = container.streams.video[0]
-            for number, frame in enumerate(container.decode(stream)):
-                if number in wanted:
-                    yield number, frame.to_ndarray(format="rgb24")
-                if number >= max(wanted):
-                    return
-    except (av.error.FFmpegError, IndexError) as e:
-        raise UserError(f"{video}: cannot decode the video: {e}") from None
+    def __init__(self, path: Path):
+        self.path = path
+        self.why = ""
+
+    def frames(self, wanted: set[int]) -> Iterator[tuple[int, av.VideoFrame]]:
+        """(frame number, decoded frame) for each wanted frame, in order; stops after the last wanted one.
+
+        Frames are decoded on FFmpeg's threads, and only wanted ones are converted to pixels. A video cut
+        short or damaged part-way gives the frames before the damage, and ``why`` names the file and the
+        frame it ended at, for the skipped frames' reason.
+        """
+        import av
+
+        number = -1
+        last = max(wanted)
+        try:
+            with av.open(str(self.path)) as container:
+                stream = container.streams.video[0]
+                stream.thread_type = "AUTO"
+                for number, frame in enumerate(container.decode(stream)):
+                    if number in wanted:
+                        yield number, frame
+                    if number >= last:
+                        return
+        except (av.error.FFmpegError, IndexError) as e:
+            self.why = f" ({self.path.name} cannot be decoded past frame {number + 1}: {e})"
+            return
+        self.why = f" ({self.path.name} ends after {number + 1} frames: cut short?)"

@@ -22,7 +22,7 @@ from trainer.config import RunConfig
 from trainer.data.formats import open_source
 from trainer.data.transforms import resize_frame
 from trainer.devices import Distributed, pick_device
-from trainer.gan import Precision, build_networks, gan_step
+from trainer.gan import Autocast, build_networks, gan_step
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.losses import GANLoss
 from trainer.quantize import CALIBRATION_FRAMES
@@ -85,7 +85,7 @@ def measure_seconds(config: RunConfig) -> tuple[float, float]:
     if config.train.threads:
         torch.set_num_threads(config.train.threads)
     generator, discriminator, opt_g, opt_d = build_networks(config, device)
-    amp = Precision.for_device(device, config.train.amp)
+    amp = Autocast.for_device(device, config.train.amp)
     scaler = torch.amp.GradScaler(device.type, enabled=amp.scaled)
     quiet = config.model_copy(update={"train": config.train.model_copy(update={"num_workers": 0})})
     batches = iter(training_loader(quiet, Distributed(), 0, pin_memory=False))

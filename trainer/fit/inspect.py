@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+from PIL import Image
 
 from contract.errors import UserError
 from contract.geometry import ColourCamera
@@ -72,6 +73,54 @@ class Inspection:
                 f"{self.alignment_registered:.3f} fitted; {verdict}"
             )
         return out
+
+
+#: What a damaged image file raises when decoded (PIL: OSError for truncated data, SyntaxError for a broken
+#: PNG chunk, ValueError for impossible sizes), and a pair whose photo and depth differ in size.
+DAMAGE = (OSError, SyntaxError, ValueError, UserError)
+
+
+def readable(recording: Recording) -> Recording:
+    """The recording without the pairs whose files cannot be decoded, which join its skipped list, named.
+
+    Every pair is decoded once here, so one damaged file among hundreds costs its own pair and is
+    named in the summary, instead of stopping training half-way. Depth that is not depth (8-bit or
+    colour PNGs, a preview saved in place of the data) is refused outright: no frame of such a
+    recording can be right.
+    """
+    kept, damaged = [], []
+    for pair in recording.pairs:
+        try:
+            with Image.open(pair.depth) as im:
+                mode = im.mode
+                if mode not in DEPTH_MODES:
+                    raise UserError(
+                        f"{pair.depth}: an {DESCRIBED_MODES.get(mode, mode)} image, not 16-bit depth: fit needs the "
+                        "depth camera's 16-bit PNGs (a saved preview holds no distances)"
+                    )
+            read_pair(pair)
+        except UserError as e:
+            if "not 16-bit depth" in str(e):
+                raise
+            damaged.append((pair.name, str(e)))
+        except DAMAGE as e:
+            damaged.append((pair.name, f"cannot be decoded: {e}"))
+        else:
+            kept.append(pair)
+    if not damaged:
+        return recording
+    return replace(recording, pairs=kept, skipped=[*recording.skipped, *damaged])
+
+
+#: PIL modes of single-channel 16- and 32-bit images: what depth PNGs hold.
+DEPTH_MODES = ("I;16", "I;16B", "I;16L", "I", "F")
+DESCRIBED_MODES = {
+    "L": "8-bit greyscale",
+    "P": "8-bit palette",
+    "1": "1-bit",
+    "RGB": "8-bit colour",
+    "RGBA": "8-bit colour",
+}
 
 
 def sample_frames(pairs: list[RecordedPair], count: int) -> list[Frame]:

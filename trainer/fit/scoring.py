@@ -8,11 +8,7 @@ baselines has learnt the room's average, not depth from the photo, and fit says 
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
-
-import numpy as np
-from PIL import Image
 
 from contract.card import Metrics
 from contract.geometry import ColourCamera
@@ -20,26 +16,6 @@ from trainer.baselines import fit_baselines, score_baselines
 from trainer.config import DataSource, RunConfig
 from trainer.data.formats import open_source
 from trainer.evaluate import evaluate_frames, load_predictor, markdown_table
-
-Predictor = Callable[[np.ndarray], np.ndarray]
-
-
-def at_scale(predict: Predictor, scale: float) -> Predictor:
-    """``predict`` fed the photo resized by ``scale`` (the scale it was trained at), its depth resized back.
-
-    What the service does with a photo from the recording's camera: the card's camera is the
-    training camera, so the photo is resampled to it, and the depth comes back at the photo's size.
-    """
-    if scale == 1.0:
-        return predict
-
-    def run(rgb: np.ndarray) -> np.ndarray:
-        h, w = rgb.shape[:2]
-        small = np.asarray(Image.fromarray(rgb).resize((round(w * scale), round(h * scale)), Image.BILINEAR))
-        depth = Image.fromarray(predict(small).astype(np.float32), mode="F")
-        return np.asarray(depth.resize((w, h), Image.BILINEAR), dtype=np.float32)
-
-    return run
 
 
 def score_holdout(
@@ -49,11 +25,10 @@ def score_holdout(
     frames = open_source(holdout)
     depth_range = (config.data.eval_min_m, config.data.eval_max_m)
     split = f"held out: {len(frames)} frames"
-    # Both models see each photo at the scale the fit trains at, as the service will show it the fitted one.
-    scale = config.data.val_scale
-    models = {"fitted model": at_scale(load_predictor(checkpoint)[0], scale)}
+    # Each model sees each photo at its own camera (the rule in contract.resample), as the service shows it.
+    models = {"fitted model": load_predictor(checkpoint)}
     if start is not None:
-        models[f"{start.parent.name} {start.name}, zero-shot (the start)"] = at_scale(load_predictor(start)[0], scale)
+        models[f"{start.parent.name} {start.name}, zero-shot (the start)"] = load_predictor(start)
     rows, metrics = {}, []
     for label, predict in models.items():
         result, _, _ = evaluate_frames(

@@ -21,17 +21,17 @@ from tqdm import tqdm
 from contract.card import DataRef, FitRecord, ModelCard, list_versions, load_card, next_version
 from contract.errors import UserError
 from contract.geometry import ColourCamera
-from contract.registries import BUNDLED_VARIABLE, bundled_registry, registry_models, user_registry
+from contract.registries import Registries
 from contract.runtime import Precision
 from contract.spec import GeneratorSpec
 from trainer.config import DataSource, RunConfig, apply_overrides, migrate_config
 from trainer.data.formats import ReadOptions, Recording, open_recording
-from trainer.data.frames import read_pair
+from trainer.data.frames import TRAINED_PIXELS, read_pair
 from trainer.data.manifest import ManifestReader, write_manifest
 from trainer.fit.budget import Plan, Workload, measure_seconds, plan_training
-from trainer.fit.inspect import inspect_recording
+from trainer.fit.inspect import inspect_recording, readable
 from trainer.fit.scoring import score_holdout
-from trainer.fit.split import Split, split_recording
+from trainer.fit.split import MIN_PAIRS, Split, split_recording
 
 #: ``--from`` defaults to the newest version of this model in the bundled registry.
 BASE_MODEL = "rgb2cloud-7scenes"
@@ -40,7 +40,6 @@ FIT_L1 = 100.0
 #: Adam's settings in a fit (the decay is planned from the budget).
 FIT_ADAM = {"lr": 0.0005, "beta1": 0.9}
 #: The service shrinks photos above this many pixels for the generator; fit trains at the same scale.
-SERVICE_PIXELS = 640 * 480
 
 
 @dataclass
@@ -50,10 +49,12 @@ class FitOptions:
     licence: str
     #: Where the service is reached (the CLI reads the service's own host and port settings).
     service_url: str
+    #: The registries: where fit publishes (the user's, ``RGB2CLOUD_REGISTRY``, or ``--registry``), and the bundled
+    #: one whose base model a fit starts from and whose names it may not take.
+    registry: Path
+    bundled: Path
     budget_min: float = 30.0
     start_from: str | None = None  # a published version folder, "scratch", or None for the bundled base model
-    #: The user's registry (``RGB2CLOUD_REGISTRY``), never the tracked bundled one unless told to.
-    registry: Path = field(default_factory=user_registry)
     format: str | None = None
     read: ReadOptions = field(default_factory=ReadOptions)
     #: ``section.key=value`` changes to the start's recipe (``train``'s override syntax).
@@ -93,13 +94,14 @@ class FitState(BaseModel):
         return None if self.start_from == "scratch" else Path(self.start_from)
 
 
-def default_start() -> Path:
+def default_start(bundled: Path) -> Path:
     """The newest bundled base model, where ``--from`` is not given."""
-    registry = bundled_registry()
-    versions = list_versions(registry, BASE_MODEL)
+    versions = list_versions(bundled, BASE_MODEL)
     if not versions:
-        raise UserError(f"{registry}: no bundled {BASE_MODEL} to start from; pass --from, or set {BUNDLED_VARIABLE}")
-    return registry / BASE_MODEL / versions[-1]
+        raise UserError(
+            f"{bundled}: no bundled {BASE_MODEL} to start from; pass --from, or set RGB2CLOUD_BUNDLED_REGISTRY"
+        )
+    return bundled / BASE_MODEL / versions[-1]
 
 
 def start_config(start: Path) -> dict[str, Any]:
@@ -155,7 +157,7 @@ def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
         raise UserError(f"{run}: a fit is already there; add --resume to continue it, or pass --out elsewhere")
     if not options.licence.strip():
         raise UserError("--licence is required: the terms under which the recording may be used")
-    _check_name(options.name, options.registry)
+    Registries(options.registry, options.bundled).check_new_name(options.name, options.registry)
     state = FitState.model_validate_json(state_file.read_text()) if options.resume else None
     if state is not None and state.published:
         raise UserError(
@@ -169,10 +171,10 @@ def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
                 progress.say(line)
         else:
             state = _prepare(options, run, progress, started)
-            state_file.write_text(state.model_dump_json(indent=2) + "\n")
+            _save_state(state_file, state)
         target = _train_score_publish(options, state, progress)
         state.published = str(target)
-        state_file.write_text(state.model_dump_json(indent=2) + "\n")
+        _save_state(state_file, state)
         progress.finish()
     finally:
         progress.close()
@@ -181,24 +183,42 @@ def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
     return target
 
 
-def _check_name(name: str, registry: Path) -> None:
-    """Refuse a bundled model's name: the service would serve the user's versions in its place."""
-    bundled = bundled_registry()
-    if name in registry_models(bundled) and Path(registry).resolve() != bundled.resolve():
-        raise UserError(f"--name {name}: a bundled model has this name ({bundled / name}); choose another")
+def _save_state(path: Path, state: FitState) -> None:
+    """Write ``fit.json`` whole or not at all: a Ctrl-C mid-write must not leave a file ``--resume`` cannot read."""
+    partial = path.with_suffix(".json.partial")
+    partial.write_text(state.model_dump_json(indent=2) + "\n")
+    partial.replace(path)
+
+
+def interrupted_hint(run: Path) -> str:
+    """What continues a fit stopped at this moment: ``--resume`` once ``fit.json`` holds its plan, else a fresh start.
+
+    The two hints never point at each other: ``--resume`` continues any fit with a ``fit.json``, checkpoint or
+    not, and without one the same command starts again over the partial run folder.
+    """
+    if (run / "fit.json").is_file():
+        return "interrupted: the same command with --resume continues it"
+    return "interrupted before training began: the same command (without --resume) starts it again"
 
 
 def _prepare(options: FitOptions, run: Path, progress: Progress, started: float) -> FitState:
     """Everything decided before training: the data checked and split, the config, the plan."""
     recording = open_recording(options.data, options.format, options.read, run)
     progress.phase("inspecting")
+    recording = readable(recording)
+    if len(recording.pairs) < MIN_PAIRS and recording.skipped:
+        name, why = recording.skipped[0]
+        raise UserError(
+            f"{recording.root}: {len(recording.pairs)} usable pairs, fit needs at least {MIN_PAIRS}; "
+            f"{len(recording.skipped)} skipped, e.g. {name}: {why}"
+        )
     inspection = inspect_recording(recording, registration=options.registration)
     split = split_recording(recording.pairs, options.holdout, options.gap_frames)
     report = [f"{recording.root} ({recording.format})", *recording.notes, *inspection.lines(), split.line()]
     for line in report:
         progress.say(line)
     start = options.start_from
-    start = None if start == "scratch" else Path(start) if start else default_start()
+    start = None if start == "scratch" else Path(start) if start else default_start(options.bundled)
     config = _run_config(options, recording, split, inspection.colour_camera, start, run)
     progress.phase("measuring")
     step_s, predict_s = measure_seconds(config)
@@ -236,7 +256,7 @@ def _run_config(
     run: Path,
 ) -> RunConfig:
     """The starting model's recipe on this recording's split, at the scale the service will see it."""
-    tree = start_config(start or default_start())
+    tree = start_config(start or default_start(options.bundled))
     pairs = recording.pairs
     manifests = {
         part: write_manifest(run / f"{part}.csv", [pairs[i] for i in getattr(split, part)])
@@ -244,7 +264,7 @@ def _run_config(
     }
     source = {"format": "csv", "licence": options.licence, "colour_camera": colour.model_dump() if colour else None}
     height, width = read_pair(pairs[0]).depth.shape
-    scale = min(1.0, math.sqrt(SERVICE_PIXELS / (height * width)))  # what the service shrinks this camera's photos to
+    scale = min(1.0, math.sqrt(TRAINED_PIXELS / (height * width)))  # what the service shrinks this camera's photos to
     spec = GeneratorSpec.model_validate(tree["generator"])
     work, multiple = spec.work_scale, spec.core_multiple
     size = [int(height * scale / work) // multiple * multiple, int(width * scale / work) // multiple * multiple]
@@ -292,12 +312,16 @@ def _train_score_publish(options: FitOptions, state: FitState, progress: Progres
     config, plan = state.config, state.plan
     progress.phase("training")
     deadline = None if plan.fixed else progress.started + plan.deadline_s
+    last = Path(config.train.out_dir) / "checkpoints" / "last.pt"
+    resume = options.resume and last.is_file()
     if options.resume:
         if not plan.fixed:  # a fresh stretch of the budget for what is left: at most the whole training time
             deadline = time.monotonic() + plan.train_s
-        done = _checkpoint_step(Path(config.train.out_dir) / "checkpoints" / "last.pt")
-        progress.say(f"resuming at step {done} of {plan.steps}")
-    summary = train(config, resume=options.resume, report=progress.tick, deadline=deadline)
+        if resume:
+            progress.say(f"resuming at step {_checkpoint_step(last)} of {plan.steps}")
+        else:
+            progress.say(f"resuming before the first checkpoint: training all {plan.steps} steps from the start")
+    summary = train(config, resume=resume, report=progress.tick, deadline=deadline)
     progress.say(f"trained {summary.steps} steps in {summary.train_seconds / 60:.1f} min")
 
     progress.phase("scoring")
@@ -350,8 +374,6 @@ def lineage(start: ModelCard) -> list[DataRef]:
 def _checkpoint_step(path: Path) -> int:
     from trainer.checkpoint import load_checkpoint
 
-    if not path.is_file():
-        raise UserError(f"{path}: no checkpoint to resume from yet; run the fit again without --resume")
     return load_checkpoint(path).step
 
 

@@ -1,0 +1,78 @@
+"""The one rescale rule: a photo is shown to a generator at the generator's own focal length.
+
+A generator learned one camera (the card's ``camera``): things look as big as they looked
+through it, and a photo from a longer lens makes everything look bigger, and so closer. As
+Metric3D does with its canonical camera, every place that runs a model resamples the photo so
+that its focal length equals the model's, runs the generator, and maps the depth back to the
+photo's own pixels. Resampling changes no distance, so the depth in metres needs no correction.
+
+The service, fit's held-out table, ``rgb2cloud evaluate``, training's validation and the int8
+calibration all call this module and nothing else, so their numbers agree to the third decimal.
+Torch-free: the serving install has no torch.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+from PIL import Image
+
+from contract.geometry import Intrinsics
+
+#: The most pixels the generator sees unless told otherwise (the service's ``inference_max_pixels``):
+#: a photo that needs more at the model's focal length is shrunk further, bounding the cost of a wide view.
+INFERENCE_MAX_PIXELS = 1280 * 960
+
+#: A generator run: HxWx3 uint8 at the model's camera in, HxW metres at the same size out.
+DepthRun = Callable[[np.ndarray], np.ndarray]
+
+
+def focal_ratio(width: float, height: float, max_pixels: int) -> float:
+    """The generator's focal length over the model's for a photo that needs ``width`` x ``height`` to match.
+
+    1 when the photo fits ``max_pixels`` at the model's focal length; below 1 when it must be
+    shrunk further, and the generator then sees everything smaller, so farther, than in training.
+    """
+    return min(1.0, math.sqrt(max_pixels / (width * height)))
+
+
+def generator_size(photo: Intrinsics, model: Intrinsics, max_pixels: int) -> tuple[tuple[int, int], float]:
+    """(width, height) at which the photo has the model's focal length, and the focal ratio.
+
+    Shrunk to ``max_pixels`` if over, which the ratio (below 1) then says.
+    """
+    width = photo.width * model.fx / photo.fx
+    height = photo.height * model.fy / photo.fy
+    ratio = focal_ratio(width, height, max_pixels)
+    return (max(1, round(width * ratio)), max(1, round(height * ratio))), ratio
+
+
+def to_model_camera(
+    rgb: np.ndarray, photo: Intrinsics, model: Intrinsics, max_pixels: int = INFERENCE_MAX_PIXELS
+) -> tuple[np.ndarray, float]:
+    """The photo (HxWx3 uint8, taken with ``photo``) resampled to the model's focal length, and the focal ratio."""
+    size, ratio = generator_size(photo, model, max_pixels)
+    if size == (rgb.shape[1], rgb.shape[0]):
+        return rgb, ratio
+    return np.asarray(Image.fromarray(rgb).resize(size, Image.Resampling.BILINEAR)), ratio
+
+
+def depth_at_photo(
+    run: DepthRun, rgb: np.ndarray, photo: Intrinsics, model: Intrinsics, max_pixels: int = INFERENCE_MAX_PIXELS
+) -> tuple[np.ndarray, float]:
+    """Depth in metres at the photo's own size, the generator having seen it at the model's focal length.
+
+    Also returns the focal ratio: 1 unless ``max_pixels`` shrank the photo further.
+    """
+    if (photo.width, photo.height) != (rgb.shape[1], rgb.shape[0]):
+        raise ValueError(
+            f"the photo is {rgb.shape[1]}x{rgb.shape[0]} but its camera is for {photo.width}x{photo.height}"
+        )
+    seen, ratio = to_model_camera(rgb, photo, model, max_pixels)
+    depth = np.asarray(run(seen), dtype=np.float32)
+    if seen is rgb:
+        return depth, ratio
+    back = Image.fromarray(depth, mode="F").resize((photo.width, photo.height), Image.Resampling.BILINEAR)
+    return np.asarray(back, dtype=np.float32), ratio
