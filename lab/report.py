@@ -218,7 +218,8 @@ def build_report(inputs: ReportInputs) -> Path:
     plot_pc_curve(curves, figures / "pc_rmse_curve.png")
     sample_grid(grid).save(local / "7scenes-samples.png")
     middle = test[len(test) // 2]
-    render_pair(predict(middle.rgb, middle.intrinsics), middle, colour).save(local / "7scenes-pointcloud.png")
+    photo_camera = colour.intrinsics(*middle.depth.shape[::-1]) if colour else middle.intrinsics
+    render_pair(predict(middle.rgb, photo_camera), middle, colour).save(local / "7scenes-pointcloud.png")
     unseen_result, _, unseen_grid = _score(predict, unseen, inputs, samples=1, scaled=True)
     sample_grid(unseen_grid).save(local / "unseen-sample.png")
     render_pair(unseen_grid[0][1], unseen[0]).save(local / "unseen-pointcloud.png")

@@ -158,6 +158,22 @@ def test_evaluation_reads_a_colour_frame_prediction_at_each_ground_truth_pixel()
     assert pixel_to_pixel["delta1"] < read_through["delta1"] - 0.01
 
 
+def test_a_photo_read_through_the_colour_camera_is_predicted_as_the_colour_camera_took_it():
+    """The photo of a raw Kinect pair is the colour camera's, not the depth camera's whose intrinsics the frame
+    carries: the predictor (which resamples to its model's camera) must be told the colour camera."""
+    colour = _same_camera(fx=90.0, fy=90.0, baseline_m=0.04)
+    frames = [Frame(np.zeros((60, 80, 3), np.uint8), _box_scene(), DEPTH_CAMERA, "box")]
+    seen = []
+
+    def predict(rgb: np.ndarray, camera: Intrinsics) -> np.ndarray:
+        seen.append(camera)
+        return np.full(rgb.shape[:2], 1.5, np.float32)
+
+    evaluate_frames(predict, frames, min_m=0.1, max_m=10.0, colour_camera=colour)
+    evaluate_frames(predict, frames, min_m=0.1, max_m=10.0)
+    assert seen == [colour.intrinsics(80, 60), DEPTH_CAMERA]
+
+
 def test_the_fit_finds_a_colour_camera_from_edges_and_depth_steps():
     """Colour edges drawn by a known camera pair lead the fit from 'one camera' to that pair."""
     truth = _same_camera(fx=92.0, fy=92.0, cx=36.0, baseline_m=0.02, roll_deg=2.0)

@@ -94,10 +94,11 @@ def evaluate_frames(
     Returns (the table row, per-image rows, up to ``samples`` evenly spaced (rgb, prediction,
     ground truth) triples for a sample grid).
 
-    ``colour_camera``: the ground truth is a depth camera's and the prediction the
-    colour camera's (a model trained on registered depth); each ground-truth pixel
-    is compared with the prediction at the colour pixel that sees the same point
-    (``trainer.registration.sample_at_colour``), so every valid pixel still counts.
+    ``colour_camera``: the ground truth is a depth camera's and the photo and the prediction
+    the colour camera's (a model trained on registered depth): the photo is predicted as the
+    colour camera's, and each ground-truth pixel is compared with the prediction at the colour
+    pixel that sees the same point (``trainer.registration.sample_at_colour``), so every valid
+    pixel still counts.
     Each of ``diagnostics`` sees every scored prediction; its result is added to the row.
     """
     acc = MetricAccumulator(min_m=min_m, max_m=max_m)
@@ -105,8 +106,11 @@ def evaluate_frames(
     keep = set(np.linspace(0, len(frames) - 1, samples).round().astype(int)) if samples else set()
     for i in tqdm(range(len(frames)), desc="evaluate", disable=not progress, unit="img"):
         frame = frames[i]
-        pred = predict(frame.rgb, frame.intrinsics)
-        if colour_camera is not None:
+        if colour_camera is None:
+            pred = predict(frame.rgb, frame.intrinsics)
+        else:  # the photo is the colour camera's; the frame's intrinsics are its depth camera's
+            h, w = frame.depth.shape
+            pred = predict(frame.rgb, colour_camera.intrinsics(w, h))
             pred = sample_at_colour(pred, frame.depth, frame.intrinsics, colour_camera)
         row = acc.add(pred, frame.depth, frame.intrinsics, frame.name)
         if row:
