@@ -271,3 +271,20 @@ def test_a_depth_scale_reaches_a_bag_before_its_frames_are_written(tmp_path):
     fits = truth * 10 <= 65535
     assert "depth unit 0.1 mm" in recording.notes[0]
     assert np.abs(back[fits] - truth[fits]).max() <= 1
+
+
+def test_a_rectified_colour_topic_is_read_before_the_raw_one(tmp_path):
+    """A bag with both the raw and the rectified colour stream: the rectified one's distortion is already undone."""
+    frames = mosd_frames(2, scale=0.25)
+    k = MOSD_CAMERA.resized(160, 120)
+    with BagWriter(tmp_path / "rec.bag", "ros1") as bag:
+        for i, (rgb, mm) in enumerate(frames):
+            t = 1.0 + i / 30
+            bag.image("/camera/color/image_raw", t, rgb[::-1].copy(), "rgb8")  # upside down: must not be read
+            bag.image("/camera/color/image_rect_color", t, rgb, "rgb8")
+            bag.camera_info("/camera/color/camera_info", t, k)
+            bag.image("/camera/aligned_depth_to_color/image_raw", t, mm, "16UC1")
+            bag.camera_info("/camera/aligned_depth_to_color/camera_info", t, k)
+    recording = open_recording(tmp_path / "rec.bag", None, ReadOptions(), tmp_path / "scratch")
+    assert recording.notes[0].startswith("bag: colour /camera/color/image_rect_color (rgb8")
+    np.testing.assert_array_equal(np.asarray(Image.open(recording.pairs[0].rgb)), frames[0][0])
