@@ -346,3 +346,18 @@ def test_a_broken_recording_is_one_error_line_from_fit(tmp_path):
     assert result.returncode == 1 and "Traceback" not in result.stderr
     assert len(lines) == 1 and lines[0].startswith(f"error: {bag}: damaged")
     assert "--resume" not in result.stderr
+
+
+def test_too_few_pairs_left_names_why_the_others_were_skipped(tmp_path):
+    """A cut-short video is not blamed on the recording's length: the error names the file and where it ended."""
+    root = stray(tmp_path, count=12)
+    for extra in range(12, 21):  # depth maps for frames the video never got
+        Image.open(root / "depth" / "000000.png").save(root / "depth" / f"{extra:06d}.png")
+    args = ["fit", str(root), "--name", "x", "--licence", "test", "--out", str(tmp_path / "run")]
+    result = subprocess.run([sys.executable, "-m", "cli", *args], cwd=REPO, capture_output=True, text=True, timeout=120)
+    last = result.stderr.strip().splitlines()[-1]
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert last == (
+        f"error: {root}: 12 usable pairs, fit needs at least 20; 9 skipped, e.g. 000012: the video has no frame "
+        "with this number (rgb.mp4 ends after 12 frames: cut short?)"
+    )
