@@ -237,7 +237,8 @@ def fit(
     from app.settings import Settings
     from trainer.data.folders import CameraFile
     from trainer.data.formats import ReadOptions
-    from trainer.fit.workflow import FitOptions, interrupted_hint
+    from trainer.fit.state import interrupted_hint
+    from trainer.fit.workflow import FitOptions
     from trainer.fit.workflow import fit as run
 
     if register not in ("auto", "yes", "no"):

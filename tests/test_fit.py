@@ -209,7 +209,7 @@ def test_ctrl_c_before_the_first_checkpoint_is_continued_by_the_hint_it_prints(r
 
 
 def test_ctrl_c_before_training_hints_a_fresh_start(tmp_path):
-    from trainer.fit.workflow import interrupted_hint
+    from trainer.fit.state import interrupted_hint
 
     assert "without --resume" in interrupted_hint(tmp_path)
     (tmp_path / "fit.json").write_text("{}")
@@ -236,6 +236,13 @@ def test_an_interrupted_fit_resumes_where_it_stopped(registry, tmp_path):
     # Finished: resuming again publishes nothing and says what was published.
     message = refused(*args, "--resume")
     assert "this fit finished and published" in message and "my-room/0.1.0" in message
+    # Also when Ctrl-C came between publishing and fit.json saying so: the card names the run.
+    state_file = tmp_path / "run" / "fit.json"
+    state = json.loads(state_file.read_text())
+    state_file.write_text(json.dumps({**state, "published": None}))
+    message = refused(*args, "--resume")
+    assert "this fit finished and published" in message and "my-room/0.1.0" in message
+    assert not (tmp_path / "registry" / "my-room" / "0.2.0").exists()
     assert not (tmp_path / "registry" / "my-room" / "0.2.0").exists()
 
 

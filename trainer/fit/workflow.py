@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, Field
 from tqdm import tqdm
 
 from contract.card import DataRef, FitRecord, ModelCard, list_versions, load_card, next_version
@@ -28,10 +27,11 @@ from trainer.config import DataSource, RunConfig, apply_overrides, migrate_confi
 from trainer.data.formats import ReadOptions, Recording, open_recording
 from trainer.data.frames import TRAINED_PIXELS, read_pair
 from trainer.data.manifest import ManifestReader, write_manifest
-from trainer.fit.budget import Plan, Workload, measure_seconds, plan_training
+from trainer.fit.budget import Workload, measure_seconds, plan_training
 from trainer.fit.inspect import inspect_recording, readable
 from trainer.fit.scoring import score_holdout
 from trainer.fit.split import MIN_PAIRS, Split, split_recording
+from trainer.fit.state import FitState, published_by, save_state
 
 #: ``--from`` defaults to the newest version of this model in the bundled registry.
 BASE_MODEL = "rgb2cloud-7scenes"
@@ -72,26 +72,6 @@ class FitOptions:
     @property
     def run_dir(self) -> Path:
         return self.out or Path("runs") / "fit" / self.name
-
-
-class FitState(BaseModel):
-    """Everything a fit decides before training, saved as ``fit.json``: what ``--resume`` continues."""
-
-    report: list[str]
-    data: str
-    format: str
-    licence: str
-    start_from: str = Field(description="the published version folder training starts from, or 'scratch'")
-    split: dict[str, dict[str, Any]] = Field(description="Split.summary: each part's frames, first and last")
-    colour_camera: ColourCamera | None
-    plan: Plan
-    config: RunConfig
-    #: The version folder this fit published, once it has: a finished fit is never resumed into a second one.
-    published: str | None = None
-
-    @property
-    def start(self) -> Path | None:
-        return None if self.start_from == "scratch" else Path(self.start_from)
 
 
 def default_start(bundled: Path) -> Path:
@@ -159,6 +139,9 @@ def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
         raise UserError("--licence is required: the terms under which the recording may be used")
     Registries(options.registry, options.bundled).check_new_name(options.name, options.registry)
     state = FitState.model_validate_json(state_file.read_text()) if options.resume else None
+    if state is not None and not state.published and (found := published_by(state, options.registry, options.name)):
+        state.published = str(found)  # Ctrl-C came after publishing, before fit.json said so
+        save_state(state_file, state)
     if state is not None and state.published:
         raise UserError(
             f"{run}: this fit finished and published {state.published}; there is nothing to resume "
@@ -171,34 +154,16 @@ def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
                 progress.say(line)
         else:
             state = _prepare(options, run, progress, started)
-            _save_state(state_file, state)
+            save_state(state_file, state)
         target = _train_score_publish(options, state, progress)
         state.published = str(target)
-        _save_state(state_file, state)
+        save_state(state_file, state)
         progress.finish()
     finally:
         progress.close()
     for line in _serve_lines(options.registry, options.name, target.name, options.service_url):
         echo(line)
     return target
-
-
-def _save_state(path: Path, state: FitState) -> None:
-    """Write ``fit.json`` whole or not at all: a Ctrl-C mid-write must not leave a file ``--resume`` cannot read."""
-    partial = path.with_suffix(".json.partial")
-    partial.write_text(state.model_dump_json(indent=2) + "\n")
-    partial.replace(path)
-
-
-def interrupted_hint(run: Path) -> str:
-    """What continues a fit stopped at this moment: ``--resume`` once ``fit.json`` holds its plan, else a fresh start.
-
-    The two hints never point at each other: ``--resume`` continues any fit with a ``fit.json``, checkpoint or
-    not, and without one the same command starts again over the partial run folder.
-    """
-    if (run / "fit.json").is_file():
-        return "interrupted: the same command with --resume continues it"
-    return "interrupted before training began: the same command (without --resume) starts it again"
 
 
 def _prepare(options: FitOptions, run: Path, progress: Progress, started: float) -> FitState:

@@ -1,0 +1,70 @@
+"""A fit's run folder as ``--resume`` reads it: ``fit.json`` (everything decided before training), and what
+continues a fit stopped at any moment."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, Field
+
+from contract.card import CardError, list_versions, load_card
+from contract.geometry import ColourCamera
+from trainer.config import RunConfig
+from trainer.fit.budget import Plan
+
+
+class FitState(BaseModel):
+    """Everything a fit decides before training, saved as ``fit.json``: what ``--resume`` continues."""
+
+    report: list[str]
+    data: str
+    format: str
+    licence: str
+    start_from: str = Field(description="the published version folder training starts from, or 'scratch'")
+    split: dict[str, dict[str, Any]] = Field(description="Split.summary: each part's frames, first and last")
+    colour_camera: ColourCamera | None
+    plan: Plan
+    config: RunConfig
+    #: The version folder this fit published, once it has: a finished fit is never resumed into a second one.
+    published: str | None = None
+
+    @property
+    def start(self) -> Path | None:
+        return None if self.start_from == "scratch" else Path(self.start_from)
+
+
+def published_by(state: FitState, registry: Path, name: str) -> Path | None:
+    """The version of ``name`` this fit's run published, if any: its card names the run's training folder.
+
+    Publishing and recording it in fit.json are two steps; a Ctrl-C between them must not make ``--resume``
+    publish the same fit again as the next version.
+    """
+    ours = Path(state.config.train.out_dir).resolve()
+    for version in reversed(list_versions(registry, name)):
+        folder = Path(registry) / name / version
+        try:
+            out_dir = load_card(folder).training.config.get("train", {}).get("out_dir")
+        except CardError:
+            continue
+        if out_dir and Path(out_dir).resolve() == ours:
+            return folder
+    return None
+
+
+def save_state(path: Path, state: FitState) -> None:
+    """Write ``fit.json`` whole or not at all: a Ctrl-C mid-write must not leave a file ``--resume`` cannot read."""
+    partial = path.with_suffix(".json.partial")
+    partial.write_text(state.model_dump_json(indent=2) + "\n")
+    partial.replace(path)
+
+
+def interrupted_hint(run: Path) -> str:
+    """What continues a fit stopped at this moment: ``--resume`` once ``fit.json`` holds its plan, else a fresh start.
+
+    The two hints never point at each other: ``--resume`` continues any fit with a ``fit.json``, checkpoint or
+    not, and without one the same command starts again over the partial run folder.
+    """
+    if (run / "fit.json").is_file():
+        return "interrupted: the same command with --resume continues it"
+    return "interrupted before training began: the same command (without --resume) starts it again"
