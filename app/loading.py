@@ -143,38 +143,45 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
     weights_bytes = sum(path.stat().st_size for path in paths.values())
     model = LoadedModel(card, folder, generators, 0.0, weights_bytes, unserved)
     start = time.perf_counter()
-    blank = np.zeros((card.camera.height, card.camera.width, 3), dtype=np.uint8)
-    for precision, path in paths.items():
-        warm = model.predict_depth(blank, precision)
-        if warm.shape != (card.camera.height, card.camera.width):
+    # The warm-up photo is the int8 sample where the version ships one (it is at the card camera's size), so
+    # the warm-up's depths are also the int8 check's.
+    sample = _int8_sample(folder, card)
+    photo = sample if sample is not None else np.zeros((card.camera.height, card.camera.width, 3), np.uint8)
+    warm = {precision: model.predict_depth(photo, precision) for precision in paths}
+    for precision, depth in warm.items():
+        if depth.shape != (card.camera.height, card.camera.width):
             raise ModelLoadError(
-                f"{path}: warm-up returned {warm.shape} for a {card.camera.width}x{card.camera.height} input"
+                f"{paths[precision]}: warm-up returned {depth.shape} for a {card.camera.width}x{card.camera.height} "
+                "input"
             )
     model.warmup_seconds = time.perf_counter() - start
-    if "int8" in generators and (why := _int8_disagreement(model, folder)):
+    if "int8" in warm and sample is not None and (why := _int8_disagreement(card, warm)):
         del model.generators["int8"]
         model.unserved["int8"] = why
         model.disagrees.add("int8")
     return model
 
 
-def _int8_disagreement(model: LoadedModel, folder: Path) -> str | None:
+def _int8_sample(folder: Path, card: ModelCard) -> np.ndarray | None:
+    """The photo the version's int8 and fp32 depth are compared on (None for versions published without one)."""
+    if card.int8 is None or card.int8.sample is None:
+        return None
+    with Image.open(folder / card.int8.sample) as im:
+        return np.asarray(im.convert("RGB"))
+
+
+def _int8_disagreement(card: ModelCard, depth: dict[Precision, np.ndarray]) -> str | None:
     """Why the int8 graph may not be served here: its depth on the version's sample photo is not fp32's.
 
     Export checked the two on the exporting machine; integer arithmetic differs between CPUs (saturation
     without VNNI), so every machine that loads the version checks again before serving int8.
     """
-    int8 = model.card.int8
-    if int8 is None or int8.sample is None:
-        return None
-    with Image.open(folder / int8.sample) as im:
-        sample = np.asarray(im.convert("RGB"))
-    parity = int8_agreement(model.predict_depth(sample, "fp32"), model.predict_depth(sample, "int8"))
-    if parity["agreement"] >= INT8_AGREEMENT:
+    parity = int8_agreement(depth["fp32"], depth["int8"])
+    if card.int8 is None or parity["agreement"] >= INT8_AGREEMENT:
         return None
     return (
         f"its int8 graph disagrees with fp32 on this machine: within 1.25x on {parity['agreement']:.1%} of the "
-        f"sample's pixels ({int8.parity['agreement']:.1%} at export, {INT8_AGREEMENT:.0%} needed)"
+        f"sample's pixels ({card.int8.parity['agreement']:.1%} at export, {INT8_AGREEMENT:.0%} needed)"
     )
 
 

@@ -26,7 +26,10 @@ PLY_RESPONSE = {200: {"content": {"application/octet-stream": {}}, "description"
 ERRORS = {
     400: {"description": "empty, truncated or corrupt image"},
     404: {"description": "no such model or version; the body lists what the registry holds"},
-    409: {"description": "the model version is in the registry but fails verification; the body says why"},
+    409: {
+        "description": "the model version is in the registry but fails verification, or precision=int8 names a "
+        "graph that disagrees with fp32 on this machine; the body says why"
+    },
     413: {"description": "body or pixel count over the limit"},
     415: {"description": "not an image"},
     422: {"description": "a query parameter out of range"},

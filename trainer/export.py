@@ -58,7 +58,6 @@ from trainer.quantize import (
 )
 
 PARITY_TOLERANCE = 1e-4
-#: int8 depth must agree with fp32 within 1.25x on at least this share of the parity image's pixels.
 OPSET = 18
 
 

@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from contract.card import METRIC_KEYS
 from contract.errors import UserError
+from contract.geometry import Intrinsics
 from trainer.checkpoint import (
     Best,
     Checkpoint,
@@ -113,12 +114,12 @@ def training_loader(config: RunConfig, ddp: Distributed, start_step: int, pin_me
 
 
 def score_generator(
-    generator: GlobalGenerator, config: RunConfig, frames: ConcatFrames
+    generator: GlobalGenerator, config: RunConfig, frames: ConcatFrames, camera: Intrinsics
 ) -> tuple[dict, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-    """Validation: the generator run as export will run it (its inference settings, at its card's camera)."""
+    """Validation: the generator run as export will run it (its inference settings, at its card's ``camera``)."""
     generator.eval()
     runner = EagerGenerator(InferenceGraph(generator, config.inference), config.generator.input_multiple)
-    predict = Predictor(lambda rgb: config.depth.decode(runner.predict_raw(rgb)), model_camera(config), "validation")
+    predict = Predictor(lambda rgb: config.depth.decode(runner.predict_raw(rgb)), camera, "validation")
     result, _, grid = evaluate_frames(
         predict, frames, min_m=config.data.eval_min_m, max_m=config.data.eval_max_m, samples=4
     )
@@ -148,6 +149,8 @@ class Run:
     stretches: list[HardwareStretch] = field(default_factory=list)
     writer: SummaryWriter | None = None
     val_frames: ConcatFrames | None = None
+    #: The camera the generator is trained at (``model_camera``): validation resamples every frame to it.
+    camera: Intrinsics | None = None
 
     @property
     def out(self) -> Path:
@@ -222,6 +225,7 @@ def start_run(config: RunConfig, resume: bool, ddp: Distributed) -> Run:
         run.discriminator = DistributedDataParallel(discriminator, device_ids=ids)
     if config.data.val:
         run.val_frames = ConcatFrames([open_source(s) for s in config.data.val])
+        run.camera = model_camera(config)
     if ddp.is_main:
         run.out.mkdir(parents=True, exist_ok=True)
         (run.out / "config.yaml").write_text(yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
@@ -231,9 +235,9 @@ def start_run(config: RunConfig, resume: bool, ddp: Distributed) -> Run:
 
 def validate(run: Run) -> None:
     """Score the generator on the validation frames at ``run.step``; keep ``best.pt`` if it is the best yet."""
-    if run.val_frames is None or run.writer is None:
+    if run.val_frames is None or run.camera is None or run.writer is None:
         return
-    result, grid = score_generator(unwrap(run.generator), run.config, run.val_frames)
+    result, grid = score_generator(unwrap(run.generator), run.config, run.val_frames, run.camera)
     for key in METRIC_KEYS:
         run.writer.add_scalar(f"val/{key}", result[key], run.step)
     (run.out / "samples").mkdir(exist_ok=True)

@@ -63,7 +63,7 @@ class CameraFile:
 
     def intrinsics(self, width: int, height: int, where: Path) -> Intrinsics:
         """The camera for a ``width`` x ``height`` photo; UserError naming ``where`` if a value is missing."""
-        missing = [key for key in ("fx", "fy", "cx", "cy") if getattr(self, key) is None]
+        missing = [key for key in INTRINSIC_KEYS if getattr(self, key) is None]
         if missing:
             raise UserError(
                 f"{where}: no camera intrinsics ({', '.join(missing)} missing): add an {INTRINSICS_FILE} "

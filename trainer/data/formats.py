@@ -19,7 +19,7 @@ from PIL import Image
 from contract.errors import UserError
 from trainer.config import DataSource
 from trainer.data.folders import CameraFile, FoldersReader, colour_folder, is_folders_layout, select_frames
-from trainer.data.frames import DEFAULT_MAX_FRAMES, Frame, FrameReader, PairsReader, RecordedPair, spread
+from trainer.data.frames import DEFAULT_MAX_FRAMES, Frame, FrameReader, PairsReader, RecordedPair, kept_note, spread
 from trainer.data.manifest import ManifestReader
 from trainer.data.nyu import NyuReader
 from trainer.data.phone_frames import DEFAULT_MIN_CONFIDENCE, PhoneOptions
@@ -138,8 +138,7 @@ def open_recording(root: Path, format: str | None, options: ReadOptions, scratch
     if format not in WRITTEN:  # written readers thin before they write
         kept = spread(pairs[:: options.every], options.max_frames)
         if len(kept) < len(pairs):
-            capped = f", capped at {len(kept)} evenly spread (--max-frames; 0 keeps all)" if options.max_frames else ""
-            notes.append(f"kept {len(kept)} of {len(pairs)} pairs: every {options.every}th{capped}")
+            notes.append(kept_note(len(pairs), len(kept), options.every, options.max_frames, "pairs"))
         pairs = kept
     return Recording(root, format, pairs, reader.skipped, reader.licence or None, notes)
 

@@ -114,6 +114,14 @@ def spread(items: Sequence[T], count: int | None) -> list[T]:
     return [items[i] for i in np.linspace(0, len(items) - 1, count).round().astype(int)]
 
 
+def kept_note(total: int, kept: int, every: int, max_frames: int | None, unit: str = "frames") -> str:
+    """What ``spread(items[::every], max_frames)`` kept of ``total``, and why: the line fit prints."""
+    how = f"every {every}th {unit[:-1]}" if every > 1 else f"every {unit[:-1]}"
+    if kept < len(range(0, total, max(1, every))):
+        how += f", capped at {kept} evenly spread (--max-frames {max_frames}; 0 keeps all)"
+    return f"kept {kept} of {total} {unit}: {how}"
+
+
 def written_pairs(
     name: str, files: list[tuple[str, Path, Path]], camera: Intrinsics, skipped: list[tuple[str, str]], notes: list[str]
 ) -> PairsReader:

@@ -18,7 +18,7 @@ from PIL import Image
 
 from contract.geometry import Intrinsics
 from trainer.data.folders import CameraFile
-from trainer.data.frames import DEFAULT_MAX_FRAMES, TRAINED_PIXELS, spread
+from trainer.data.frames import DEFAULT_MAX_FRAMES, TRAINED_PIXELS, kept_note, spread
 from trainer.registration import upsample_depth
 
 #: Depth pixels of lower confidence are dropped by default: ARKit's 2 is "high".
@@ -44,10 +44,7 @@ class PhoneOptions:
 
     def note(self, total: int, kept: int) -> str:
         """What was kept of a recording of ``total`` frames, and why."""
-        how = f"every {self.every}th frame" if self.every > 1 else "every frame"
-        if kept < len(range(0, total, max(1, self.every))):
-            how += f", capped at {kept} evenly spread (--max-frames {self.max_frames}; 0 keeps all)"
-        return f"kept {kept} of {total} frames: {how}"
+        return kept_note(total, kept, self.every, self.max_frames)
 
 
 class FrameWriter:

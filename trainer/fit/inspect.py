@@ -93,20 +93,17 @@ def readable(recording: Recording) -> Recording:
         try:
             with Image.open(pair.depth) as im:
                 mode = im.mode
-                if mode not in DEPTH_MODES:
-                    raise UserError(
-                        f"{pair.depth}: an {DESCRIBED_MODES.get(mode, mode)} image, not 16-bit depth: fit needs the "
-                        "depth camera's 16-bit PNGs (a saved preview holds no distances)"
-                    )
-            read_pair(pair)
-        except UserError as e:
-            if "not 16-bit depth" in str(e):
-                raise
-            damaged.append((pair.name, str(e)))
+            if mode in DEPTH_MODES:
+                read_pair(pair)
         except DAMAGE as e:
-            damaged.append((pair.name, f"cannot be decoded: {e}"))
-        else:
-            kept.append(pair)
+            damaged.append((pair.name, str(e) if isinstance(e, UserError) else f"cannot be decoded: {e}"))
+            continue
+        if mode not in DEPTH_MODES:
+            raise UserError(
+                f"{pair.depth}: an {DESCRIBED_MODES.get(mode, mode)} image, not 16-bit depth: fit needs the "
+                "depth camera's 16-bit PNGs (a saved preview holds no distances)"
+            )
+        kept.append(pair)
     if not damaged:
         return recording
     return replace(recording, pairs=kept, skipped=[*recording.skipped, *damaged])
