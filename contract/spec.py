@@ -10,7 +10,7 @@ a new setting is a field here plus the code that applies it in the exported grap
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -51,6 +51,15 @@ class GeneratorSpec(Strict):
         "room-scale cues that fix a view's absolute depth, with the same weights and compute",
     )
 
+    upsampler: Literal["transpose", "shuffle", "resize"] = Field(
+        "transpose",
+        description="how each decoder stage doubles the resolution. transpose: pix2pixHD's 3x3 transposed "
+        "convolution, whose uneven overlap leaves a periodic ripple (periods 2, 4, 8 px) in depth; shuffle: a "
+        "3x3 convolution to 4x the channels then a pixel shuffle, ICNR-initialised so it starts free of the "
+        "checkerboard, at a transposed convolution's cost; resize: nearest-neighbour 2x then a 3x3 convolution, "
+        "ripple-free but at 4x the stage's multiply-adds",
+    )
+
     @model_validator(mode="after")
     def _one_dilation_per_block(self) -> GeneratorSpec:
         if self.dilations and (len(self.dilations) != self.n_blocks or min(self.dilations) < 1):
@@ -80,11 +89,13 @@ class GeneratorSpec(Strict):
         shapes += [(ngf * 2 ** (i + 1), ngf * 2**i, 3, 3) for i in range(self.n_downsample)]
         c = ngf * 2**self.n_downsample
         shapes += [(c, c, 3, 3)] * (2 * self.n_blocks)
-        # ConvTranspose2d weights are (in, out, k, k).
-        shapes += [
-            (ngf * 2 ** (self.n_downsample - i), ngf * 2 ** (self.n_downsample - i - 1), 3, 3)
-            for i in range(self.n_downsample)
-        ]
+        for i in range(self.n_downsample):
+            c = ngf * 2 ** (self.n_downsample - i)
+            shapes.append(
+                (c, c // 2, 3, 3)  # ConvTranspose2d weights are (in, out, k, k)
+                if self.upsampler == "transpose"
+                else (2 * c if self.upsampler == "shuffle" else c // 2, c, 3, 3)  # shuffle: 4 x c/2 outputs
+            )
         shapes.append((self.output_nc, ngf, 7, 7))
         return shapes
 

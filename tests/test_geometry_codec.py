@@ -10,7 +10,7 @@ from contract.codec import DepthEncoding, rgb_to_input
 from contract.geometry import POINT, Intrinsics, colours, pad_to_multiple, point_cloud, xyz
 from trainer.config import TransformConfig
 from trainer.data.frames import Frame
-from trainer.data.transforms import TransformParams, apply_params, sample_params
+from trainer.data.transforms import TransformParams, apply_params, crop_size, sample_params
 
 
 def test_point_cloud_is_formula_5():
@@ -109,3 +109,19 @@ def test_rgb_to_input_range_and_layout():
     x = rgb_to_input(np.array([[[0, 255, 127]]], dtype=np.uint8))
     assert x.shape == (1, 3, 1, 1) and x.dtype == np.float32
     np.testing.assert_allclose(x.ravel(), [-1.0, 1.0, 127 / 127.5 - 1], rtol=1e-6)
+
+
+def test_mixed_extent_batches_are_narrower_views_at_the_same_scale_on_the_network_grid():
+    """``extent`` crops a narrower view without resampling it (a longer lens at the training focal length),
+    whole frames in ``whole_share`` of the batches, every size a multiple of the network's grid."""
+    config = TransformConfig(size=(240, 320), scale=(0.5, 0.5), extent=(0.5, 1.0), whole_share=0.5)
+    sizes = [crop_size(np.random.default_rng([0, batch, 1]), config, 8) for batch in range(200)]
+    assert 0.35 < sum(s == (240, 320) for s in sizes) / len(sizes) < 0.65
+    assert all(h % 8 == 0 and w % 8 == 0 and 120 <= h <= 240 and 160 <= w <= 320 for h, w in sizes)
+    assert min(h for h, _ in sizes) < 140
+    frame = Frame(np.zeros((480, 640, 3), np.uint8), np.full((480, 640), 2.0, np.float32), KINECT, "f")
+    out = apply_params(frame, sample_params(np.random.default_rng(2), config, 480, 640, (120, 160)))
+    assert out.depth.shape == (120, 160)
+    assert out.intrinsics.fx == pytest.approx(KINECT.fx * 0.5)  # the scale of a whole frame: only the view narrows
+    with pytest.raises(ValueError, match="extent"):
+        TransformConfig(extent=(0.1, 1.0))

@@ -56,7 +56,15 @@ def test_generator_layout_follows_the_paper():
     assert all(not m.affine for m in g.modules() if isinstance(m, torch.nn.InstanceNorm2d))
 
 
-@pytest.mark.parametrize("config", [GeneratorSpec(), GeneratorSpec(ngf=16, n_downsample=3, n_blocks=9)])
+@pytest.mark.parametrize(
+    "config",
+    [
+        GeneratorSpec(),
+        GeneratorSpec(ngf=16, n_downsample=3, n_blocks=9),
+        GeneratorSpec(ngf=8, n_downsample=3, n_blocks=2, upsampler="shuffle"),
+        GeneratorSpec(ngf=8, n_downsample=3, n_blocks=2, upsampler="resize"),
+    ],
+)
 def test_weight_shapes_match_the_network(config):
     g = GlobalGenerator(config)
     actual = [tuple(m.weight.shape) for m in g.modules() if isinstance(m, torch.nn.Conv2d | torch.nn.ConvTranspose2d)]
@@ -181,3 +189,23 @@ def test_without_adversarial_terms_the_discriminator_is_never_run(tmp_path):
     assert all(torch.equal(a, b) for a, b in zip(before, discriminator.parameters(), strict=True))
     with pytest.raises(ValueError, match="nothing would be learned"):
         LossConfig(gan=0, feature_matching=0, l1_depth=0)
+
+
+def test_shuffle_upsampler_starts_free_of_the_checkerboard_and_keeps_every_other_layer_on_a_warm_start():
+    """ICNR makes each 2x2 block of a shuffled map start equal (a nearest-neighbour upsampling), so a fresh
+    shuffle stage adds no period-2 pattern; a transposed convolution's uneven overlap does."""
+    from trainer.gan import init_weights
+    from trainer.networks import upsampler
+
+    torch.manual_seed(0)
+    x = torch.randn(1, 8, 16, 16)
+    shuffle = upsampler("shuffle", 8)
+    shuffle.apply(init_weights)
+    y = shuffle(x)
+    torch.testing.assert_close(y[..., 0::2, 0::2], y[..., 1::2, 1::2])
+    torch.testing.assert_close(y[..., 0::2, 0::2], y[..., 0::2, 1::2])
+    transpose = upsampler("transpose", 8)
+    transpose.apply(init_weights)
+    z = transpose(x)
+    assert not torch.allclose(z[..., 0::2, 0::2], z[..., 1::2, 1::2], atol=1e-3)
+    assert y.shape == z.shape == (1, 4, 32, 32)

@@ -153,3 +153,26 @@ def test_two_nodes_on_loopback_end_with_identical_weights(tmp_path):
     codes = [node.wait(timeout=300) for node in nodes]
     assert codes == [0, 0], "\n".join(log.read_text()[-2000:] for log in logs)
     assert_two_ranks_agree(tmp_path / "run")
+
+
+def test_a_run_that_swaps_the_upsampler_starts_from_every_other_layer(trained_checkpoint):
+    """0.9.0 starts from 0.8.1 with a pixel-shuffle upsampler: the encoder, residual blocks and output layer
+    carry over; the upsampling layers keep their fresh ICNR start. Any other difference is refused."""
+    from contract.errors import UserError
+    from trainer.checkpoint import load_weights, start_weights
+    from trainer.gan import init_weights
+    from trainer.networks import GlobalGenerator
+
+    given = load_weights(trained_checkpoint)
+    spec = given.config.generator.model_copy(update={"upsampler": "shuffle"})
+    generator = GlobalGenerator(spec)
+    generator.apply(init_weights)
+    fresh = {key: tensor.clone() for key, tensor in generator.state_dict().items()}
+    started = start_weights(generator, trained_checkpoint, spec)
+    carried = [key for key in started if key in given.generator and torch.equal(started[key], given.generator[key])]
+    kept_fresh = [key for key in started if torch.equal(started[key], fresh[key])]
+    assert set(carried) | set(kept_fresh) == set(started)
+    assert len(carried) == len(given.generator) - 2 * spec.n_downsample  # all but each stage's weight and bias
+    assert all(".0." in key for key in kept_fresh) and len(kept_fresh) == 2 * spec.n_downsample
+    with pytest.raises(UserError, match="is not this run's"):
+        start_weights(generator, trained_checkpoint, spec.model_copy(update={"ngf": spec.ngf * 2}))

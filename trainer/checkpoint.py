@@ -164,11 +164,12 @@ def load_generator_weights(path: Path, spec: GeneratorSpec) -> StateDict:
     """The generator weights of a checkpoint or published version, to start a run from.
 
     Only the generator carries over: a new place needs a discriminator that judges it
-    afresh. The spec must be the run's own, so the weights fit the network.
+    afresh. The spec must be the run's own, so the weights fit the network, except for
+    ``upsampler``: a run that swaps it keeps every other layer (``start_weights``).
     """
     weights = load_weights(path)
     theirs = weights.config.generator
-    if theirs != spec:
+    if theirs.model_copy(update={"upsampler": spec.upsampler}) != spec:
         raise UserError(f"{path}: its generator {theirs.model_dump()} is not this run's {spec.model_dump()}")
     return weights.generator
 
@@ -191,3 +192,16 @@ def _published_weights(version_dir: Path) -> TrainedWeights:
         published=f"{card.name} {card.version}",
         inference=card.inference,  # as exported, which may differ from the training config's
     )
+
+
+def start_weights(generator: torch.nn.Module, path: Path, spec: GeneratorSpec) -> StateDict:
+    """``generator``'s state with every layer that ``path`` has in the same shape taken from it.
+
+    With the same spec that is every layer; with another upsampler, the upsampling layers keep
+    their fresh initialisation (their keys differ), and the encoder, residual blocks and output
+    layer carry over.
+    """
+    own = generator.state_dict()
+    given = load_generator_weights(path, spec)
+    kept = {key: tensor for key, tensor in given.items() if key in own and own[key].shape == tensor.shape}
+    return {**own, **kept}

@@ -99,6 +99,23 @@ class TransformConfig(Strict):
 
     size: tuple[int, int] = Field((240, 320), description="training crop (height, width)")
     scale: tuple[float, float] = Field((0.5, 0.6), description="resize factor range applied before cropping")
+    extent: tuple[float, float] = Field(
+        (1.0, 1.0),
+        description="each batch's crops span this fraction (min, max) of `size` per side, at the same scale: "
+        "a narrower view at the training focal length, as a longer lens's photo reaches the generator once "
+        "resampled to the model's camera (one draw per batch, so a batch is one size)",
+    )
+    whole_share: float = Field(
+        0.0, ge=0.0, le=1.0, description="the share of batches that keep the whole `size` whatever `extent` says"
+    )
+
+    @model_validator(mode="after")
+    def _extent_in_range(self) -> TransformConfig:
+        low, high = self.extent
+        if not 0.25 <= low <= high <= 1.0:
+            raise ValueError(f"data.transform.extent {list(self.extent)} must satisfy 0.25 <= min <= max <= 1")
+        return self
+
     flip: bool = True
     brightness: float = Field(0.2, ge=0)
     contrast: float = Field(0.2, ge=0)

@@ -20,11 +20,23 @@ from trainer.networks import GlobalGenerator, MultiscaleDiscriminator
 
 
 def init_weights(module: nn.Module) -> None:
-    """pix2pixHD's initialisation: conv weights ~ N(0, 0.02), biases 0."""
+    """pix2pixHD's initialisation: conv weights ~ N(0, 0.02), biases 0; ICNR before a pixel shuffle."""
     if isinstance(module, nn.Conv2d | nn.ConvTranspose2d):
         nn.init.normal_(module.weight, 0.0, 0.02)
         if module.bias is not None:
             nn.init.zeros_(module.bias)
+    if isinstance(module, nn.Sequential) and len(module) == 2 and isinstance(module[1], nn.PixelShuffle):
+        icnr_(module[0], module[1].upscale_factor)
+
+
+def icnr_(conv: nn.Conv2d, factor: int) -> None:
+    """ICNR (Aitken et al. 2017): the r^2 sub-pixel outputs of each channel start with one kernel, so the
+    shuffled map starts as a nearest-neighbour upsampling of one convolution, with no checkerboard."""
+    out = conv.out_channels // factor**2
+    with torch.no_grad():
+        conv.weight.copy_(conv.weight[:out].repeat_interleave(factor**2, dim=0))
+        if conv.bias is not None:
+            conv.bias.copy_(conv.bias[:out].repeat_interleave(factor**2))
 
 
 def _split(outputs: list[list[torch.Tensor]], n: int) -> tuple[list[list[torch.Tensor]], list[list[torch.Tensor]]]:

@@ -46,9 +46,22 @@ class ResnetBlock(nn.Module):
         return x + self.block(x)
 
 
+def upsampler(kind: str, channels: int) -> nn.Module:
+    """One decoder stage's 2x upsampling from ``channels`` to ``channels // 2`` (``GeneratorSpec.upsampler``).
+
+    Each kind is one module, so the layers after it keep their state-dict keys whichever is chosen.
+    """
+    out = channels // 2
+    if kind == "transpose":
+        return nn.ConvTranspose2d(channels, out, 3, stride=2, padding=1, output_padding=1)
+    if kind == "shuffle":
+        return nn.Sequential(nn.Conv2d(channels, out * 4, 3, padding=1), nn.PixelShuffle(2))
+    return nn.Sequential(nn.Upsample(scale_factor=2, mode="nearest"), nn.Conv2d(channels, out, 3, padding=1))
+
+
 class GlobalGenerator(nn.Module):
     """pix2pixHD's global generator: 7x7 front-end, n_downsample stride-2 convs, n_blocks
-    residual blocks (optionally dilated), n_downsample transposed convs, 7x7 output conv, tanh.
+    residual blocks (optionally dilated), n_downsample 2x upsamplers, 7x7 output conv, tanh.
 
     It runs at its working scale: height and width must be multiples of
     ``spec.core_multiple``. The trainer feeds it frames already at that scale, so the
@@ -68,11 +81,7 @@ class GlobalGenerator(nn.Module):
         layers += [ResnetBlock(c, spec.dropout, d) for d in spec.dilations or [1] * spec.n_blocks]
         for i in range(spec.n_downsample):
             c = ngf * 2 ** (spec.n_downsample - i)
-            layers += [
-                nn.ConvTranspose2d(c, c // 2, 3, stride=2, padding=1, output_padding=1),
-                _norm(c // 2),
-                nn.ReLU(True),
-            ]
+            layers += [upsampler(spec.upsampler, c), _norm(c // 2), nn.ReLU(True)]
         layers += [nn.ReflectionPad2d(3), nn.Conv2d(ngf, spec.output_nc, 7), nn.Tanh()]
         self.model = nn.Sequential(*layers)
 

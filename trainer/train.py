@@ -35,8 +35,8 @@ from trainer.checkpoint import (
     HardwareStretch,
     hardware_history,
     load_checkpoint,
-    load_generator_weights,
     save_checkpoint,
+    start_weights,
 )
 from trainer.config import RunConfig, complete_config
 from trainer.data.dataset import ConcatFrames, StepBatchSampler, TrainingSet
@@ -102,7 +102,14 @@ def training_loader(config: RunConfig, ddp: Distributed, start_step: int, pin_me
     """This rank's batches from ``start_step`` on, each rebuilt from the step number alone."""
     frames = ConcatFrames([reader for s in config.data.train for reader in [open_source(s)] * s.repeat])
     settings = config.train
-    dataset = TrainingSet(frames, config.data.transform, config.depth, settings.seed)
+    dataset = TrainingSet(
+        frames,
+        config.data.transform,
+        config.depth,
+        settings.seed,
+        settings.batch_size,
+        config.generator.core_multiple,
+    )
     sampler = StepBatchSampler(len(frames), settings.batch_size, settings.seed, ddp.rank, ddp.world_size, start_step)
     return DataLoader(
         dataset,
@@ -215,7 +222,7 @@ def start_run(config: RunConfig, resume: bool, ddp: Distributed) -> Run:
             saved.stretches,
         )
     elif config.train.start_from is not None:
-        generator.load_state_dict(load_generator_weights(config.train.start_from, config.generator))
+        generator.load_state_dict(start_weights(generator, config.train.start_from, config.generator))
     hardware = hardware_description(device, ddp.world_size)
     if not run.stretches or run.stretches[-1].hardware != hardware:
         run.stretches.append(HardwareStretch(run.step, hardware))

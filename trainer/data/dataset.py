@@ -19,7 +19,7 @@ from torch.utils.data import Dataset, Sampler
 from contract.codec import DepthEncoding
 from trainer.config import TransformConfig
 from trainer.data.frames import Frame, FrameReader
-from trainer.data.transforms import apply_params, sample_params
+from trainer.data.transforms import apply_params, crop_size, sample_params
 
 
 def frame_to_tensors(frame: Frame, encoding: DepthEncoding) -> dict[str, torch.Tensor]:
@@ -49,10 +49,23 @@ class ConcatFrames:
 
 
 class TrainingSet(Dataset):
-    """Indexed by (frame index, global position): augments with an RNG seeded by both."""
+    """Indexed by (frame index, global position): augments with an RNG seeded by both.
 
-    def __init__(self, frames: ConcatFrames, transform: TransformConfig, encoding: DepthEncoding, seed: int):
+    The crop size is drawn once per batch (position // batch_size names one rank's batch of
+    one step), so a batch of mixed-extent views stacks into one tensor.
+    """
+
+    def __init__(
+        self,
+        frames: ConcatFrames,
+        transform: TransformConfig,
+        encoding: DepthEncoding,
+        seed: int,
+        batch_size: int,
+        multiple: int,
+    ):
         self.frames, self.transform, self.encoding, self.seed = frames, transform, encoding, seed
+        self.batch_size, self.multiple = batch_size, multiple
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -60,8 +73,10 @@ class TrainingSet(Dataset):
     def __getitem__(self, key: tuple[int, int]) -> dict[str, torch.Tensor]:
         index, position = key
         frame = self.frames[index]
+        batch_rng = np.random.default_rng([self.seed, position // self.batch_size, 1])
+        crop = crop_size(batch_rng, self.transform, self.multiple)
         rng = np.random.default_rng([self.seed, position])
-        params = sample_params(rng, self.transform, *frame.depth.shape)
+        params = sample_params(rng, self.transform, *frame.depth.shape, crop)
         return frame_to_tensors(apply_params(frame, params), self.encoding)
 
 

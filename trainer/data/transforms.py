@@ -31,8 +31,20 @@ class TransformParams:
     saturation: float
 
 
-def sample_params(rng: np.random.Generator, config: TransformConfig, height: int, width: int) -> TransformParams:
-    crop_h, crop_w = config.size
+def crop_size(rng: np.random.Generator, config: TransformConfig, multiple: int) -> tuple[int, int]:
+    """One batch's crop (height, width): ``size``, or a narrower view drawn from ``extent``, on the network's grid."""
+    height, width = config.size
+    if rng.random() < config.whole_share:
+        return height, width
+    extent = rng.uniform(*config.extent)
+    return tuple(max(multiple, int(side * extent) // multiple * multiple) for side in (height, width))
+
+
+def sample_params(
+    rng: np.random.Generator, config: TransformConfig, height: int, width: int, crop: tuple[int, int] | None = None
+) -> TransformParams:
+    """One frame's draw; ``crop`` (default ``config.size``) is the window taken from the resized frame."""
+    crop_h, crop_w = crop or config.size
     scale = max(rng.uniform(*config.scale), crop_h / height, crop_w / width)  # never smaller than the crop
     new_h, new_w = max(crop_h, math.ceil(height * scale)), max(crop_w, math.ceil(width * scale))
     top = int(rng.integers(0, new_h - crop_h + 1))
