@@ -169,7 +169,7 @@ FitFrom = Annotated[
 ]
 FitFormat = Annotated[
     str | None,
-    typer.Option(help="folders | tum | 7scenes | nyu | csv | rosbag | strayscanner | record3d (default: detected)"),
+    typer.Option(help="folders|tum|7scenes|nyu|csv|rosbag|azurekinect|strayscanner|record3d (default: detected)"),
 ]
 Holdout = Annotated[
     str | None, typer.Option(help="held-out frames instead of the last 20%: names, globs or ranges, e.g. 'test*'")
@@ -179,7 +179,7 @@ DepthTopic = Annotated[
     str | None, typer.Option(help="a bag's depth image topic (default: found; aligned to colour preferred)")
 ]
 MaxGapMs = Annotated[
-    float, typer.Option(help="a bag's colour and depth frames further apart than this are not a pair", min=0)
+    float, typer.Option(help="a bag's or Kinect file's colour and depth further apart than this are no pair", min=0)
 ]
 MinConfidence = Annotated[
     int, typer.Option(help="Stray Scanner, Record3D: keep depth pixels of this LiDAR confidence and up", min=0, max=2)

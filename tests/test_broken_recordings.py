@@ -267,7 +267,7 @@ def test_a_depth_scale_for_metres_is_refused(tmp_path):
 
 def test_a_depth_scale_for_a_phone_export_is_refused(tmp_path):
     message = refused(r3d(tmp_path), tmp_path, ReadOptions(camera=CameraFile(depth_scale=1000.0)))
-    assert message.endswith("--depth-scale does not apply to a record3d export: its format fixes the depth units")
+    assert message.endswith("--depth-scale does not apply to a record3d recording: its format fixes the units")
 
 
 # --- a few broken frames among many: skipped, named, and the rest read ---------------------------------

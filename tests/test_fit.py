@@ -326,8 +326,8 @@ def test_wrong_units_and_too_few_pairs_are_refused_with_what_to_do(tmp_path):
     message = refused("fit", str(metres_as_millimetres), "--name", "x", "--licence", "y", "--depth-scale", "1")
     assert "the median depth is" in message and "likely --depth-scale 1000" in message
     few = write_recording(tmp_path / "few", 12)
-    assert "12 usable pairs; fit needs at least 20" in refused(
-        "fit", str(few), "--name", "x", "--licence", "y", "--register", "no"
+    assert refused("fit", str(few), "--name", "x", "--licence", "y", "--register", "no") == (
+        f"error: {few}: 12 usable pairs, fit needs at least 20 (record a little longer)"
     )
 
 

@@ -18,6 +18,7 @@ from PIL import Image
 
 from contract.errors import UserError
 from trainer.config import DataSource
+from trainer.data.azure_kinect import KinectOptions, is_kinect_recording, read_kinect
 from trainer.data.folders import CameraFile, FoldersReader, colour_folder, is_folders_layout, select_frames
 from trainer.data.frames import DEFAULT_MAX_FRAMES, Frame, FrameReader, PairsReader, RecordedPair, kept_note, spread
 from trainer.data.manifest import ManifestReader
@@ -30,9 +31,9 @@ from trainer.data.strayscanner import is_stray_scanner, read_stray_scanner
 from trainer.data.tum import TumReader
 from trainer.registration import ColourCamera, register_frame
 
-FORMATS = ("folders", "tum", "7scenes", "nyu", "csv", "rosbag", "strayscanner", "record3d")
+FORMATS = ("folders", "tum", "7scenes", "nyu", "csv", "rosbag", "azurekinect", "strayscanner", "record3d")
 #: Formats whose reader writes frames out as files before they can be listed.
-WRITTEN = ("rosbag", "strayscanner", "record3d")
+WRITTEN = ("rosbag", "azurekinect", "strayscanner", "record3d")
 
 
 @dataclass(frozen=True)
@@ -69,6 +70,8 @@ def detect_format(root: Path) -> str:
         raise UserError(f"{root}: no such file or folder")
     if is_bag(root):
         return "rosbag"
+    if is_kinect_recording(root):
+        return "azurekinect"
     if is_stray_scanner(root):
         return "strayscanner"
     if is_record3d(root):
@@ -79,7 +82,8 @@ def detect_format(root: Path) -> str:
         if root.suffix == ".mat":
             return "nyu"
         raise UserError(
-            f"{root}: a file, but not a .csv manifest, an NYU .mat, a ROS bag (.bag, .mcap, .db3) or a Record3D .r3d"
+            f"{root}: a file, but not a .csv manifest, an NYU .mat, a ROS bag (.bag, .mcap, .db3), an Azure Kinect "
+            ".mkv or a Record3D .r3d"
         )
     if is_folders_layout(root):
         return "folders"
@@ -96,7 +100,7 @@ def detect_format(root: Path) -> str:
         f"{root}: cannot tell its layout (found {', '.join(found) or 'nothing'}); expected color/ (or rgb/, "
         "image/) and depth/ folders, a TUM sequence (rgb.txt, depth.txt), 7-Scenes frame-NNNNNN.color.jpg "
         "files, a ROS 2 bag folder (metadata.yaml), a Stray Scanner export (rgb.mp4, depth/, camera_matrix.csv), "
-        "a Record3D .r3d, a .csv manifest or an NYU .mat; or pass --format"
+        "a Record3D .r3d, an Azure Kinect .mkv, a .csv manifest or an NYU .mat; or pass --format"
     )
 
 
@@ -154,7 +158,8 @@ def _overridden(pair: RecordedPair, camera: CameraFile) -> RecordedPair:
 
 
 def _written(root: Path, format: str, options: ReadOptions, out: Path) -> PairsReader:
-    """A recording whose reader writes its frames out first: a ROS bag, a Stray Scanner or Record3D export.
+    """A recording whose reader writes its frames out first: a ROS bag, an Azure Kinect recording, a Stray
+    Scanner or Record3D export.
 
     ``options.camera`` goes to the reader, which applies it to the recording's own camera (in the pixels of
     the images as recorded) before it registers, resizes or writes anything.
@@ -164,7 +169,10 @@ def _written(root: Path, format: str, options: ReadOptions, out: Path) -> PairsR
         bag = BagOptions(*topics, options.max_gap_s, options.every, options.max_frames, options.camera)
         return read_bag(root, out, bag)
     if options.camera.depth_scale is not None:
-        raise UserError(f"{root}: --depth-scale does not apply to a {format} export: its format fixes the depth units")
+        raise UserError(f"{root}: --depth-scale does not apply to a {format} recording: its format fixes the units")
+    if format == "azurekinect":
+        kinect = KinectOptions(options.max_gap_s, options.every, options.max_frames, options.camera)
+        return read_kinect(root, out, kinect)
     read = read_stray_scanner if format == "strayscanner" else read_record3d
     return read(root, out, PhoneOptions(options.every, options.max_frames, options.min_confidence, options.camera))
 

@@ -1,4 +1,4 @@
-"""Phone LiDAR frames written out for fit, by the one writer both phone readers use.
+"""Phone LiDAR and Azure Kinect frames written out for fit, by the one writer their readers use.
 
 Phone exports hold photos far larger than fit trains at (1920x1440 from current iPhones) and
 depth far smaller (256x192). Each kept frame is written once, at the size fit trains at
@@ -51,23 +51,31 @@ class FrameWriter:
     """Writes (photo, depth in metres) pairs under ``out`` as colour JPEG and 16-bit millimetre PNG."""
 
     def __init__(self, out: Path, width: int, height: int):
-        scale = min(1.0, float(np.sqrt(TRAINED_PIXELS / (width * height))))
-        self.size = (round(width * scale), round(height * scale))
+        self.size = self.written_size(width, height)
         self.out = Path(out)
         (self.out / "color").mkdir(parents=True, exist_ok=True)
         (self.out / "depth").mkdir(parents=True, exist_ok=True)
+
+    @staticmethod
+    def written_size(width: int, height: int) -> tuple[int, int]:
+        """The size a ``width`` x ``height`` photo is written at: at most ``TRAINED_PIXELS``, the same shape."""
+        scale = min(1.0, float(np.sqrt(TRAINED_PIXELS / (width * height))))
+        return round(width * scale), round(height * scale)
 
     def camera(self, native: Intrinsics) -> Intrinsics:
         """The photos' camera, ``native`` for the size they were recorded at, as written."""
         return native.resized(*self.size)
 
     def write(self, name: str, rgb: np.ndarray | Image.Image, metres: np.ndarray) -> tuple[str, Path, Path]:
-        """One pair, the photo resized to the written size and the depth upsampled to it."""
+        """One pair, the photo resized to the written size and the depth upsampled to it (depth already registered
+        at the written size, as a Kinect reader's, is written as it is)."""
         image = rgb if isinstance(rgb, Image.Image) else Image.fromarray(rgb)
         if image.size != self.size:
             image = image.resize(self.size, Image.Resampling.BILINEAR)
         photo = np.asarray(image.convert("RGB"))
-        millimetres = np.clip(np.rint(upsample_depth(metres, photo) * 1000.0), 0, 65535).astype(np.uint16)
+        if metres.shape != photo.shape[:2]:
+            metres = upsample_depth(metres, photo)
+        millimetres = np.clip(np.rint(metres * 1000.0), 0, 65535).astype(np.uint16)
         colour, depth = self.out / "color" / f"{name}.jpg", self.out / "depth" / f"{name}.png"
         Image.fromarray(photo).save(colour, quality=95)
         Image.fromarray(millimetres).save(depth)

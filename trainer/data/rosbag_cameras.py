@@ -16,38 +16,7 @@ import numpy as np
 from contract.errors import UserError
 from contract.geometry import Intrinsics
 from trainer.data.folders import CameraFile
-
-
-@dataclass(frozen=True)
-class Lens:
-    """A camera as its images are stored: the pinhole intrinsics and the lens distortion to undo first.
-
-    ``model`` and ``coefficients`` are the CameraInfo's; no distortion (all zeros) is ``None``. Undoing it
-    keeps the camera matrix (OpenCV's ``initUndistortRectifyMap`` with the same K), so the pinhole
-    intrinsics describe the undistorted images.
-    """
-
-    camera: Intrinsics
-    model: str | None = None
-    coefficients: tuple[float, ...] = ()
-
-    def undistorted(self, image: np.ndarray, nearest: bool) -> np.ndarray:
-        """``image`` with the lens distortion removed: bilinear for photos, nearest for depth (no blended depth)."""
-        if self.model is None:
-            return image
-        import cv2
-
-        k = self.camera
-        matrix = np.array([[k.fx, 0, k.cx], [0, k.fy, k.cy], [0, 0, 1]], np.float64)
-        coefficients = np.asarray(self.coefficients, np.float64)
-        size = (k.width, k.height)
-        if self.model == "equidistant":
-            maps = cv2.fisheye.initUndistortRectifyMap(matrix, coefficients[:4], np.eye(3), matrix, size, cv2.CV_32FC1)
-        else:
-            maps = cv2.initUndistortRectifyMap(matrix, coefficients, None, matrix, size, cv2.CV_32FC1)
-        interpolation = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
-        return cv2.remap(image, *maps, interpolation, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-
+from trainer.data.lens import Lens
 
 #: CameraInfo distortion models this reader undoes, with OpenCV: the standard polynomial ones and the fisheye.
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")

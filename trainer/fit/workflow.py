@@ -171,17 +171,19 @@ def _prepare(options: FitOptions, run: Path, progress: Progress, started: float)
     recording = open_recording(options.data, options.format, options.read, run)
     progress.phase("inspecting")
     recording = readable(recording)
-    if len(recording.pairs) < MIN_PAIRS and recording.skipped:
-        name, why = recording.skipped[0]
-        raise UserError(
-            f"{recording.root}: {len(recording.pairs)} usable pairs, fit needs at least {MIN_PAIRS}; "
-            f"{len(recording.skipped)} skipped, e.g. {name}: {why}"
-        )
+    found = [f"{recording.root} ({recording.format})", *recording.notes]
+    for line in found:  # what the reader found, before anything can refuse the recording
+        progress.say(line)
+    if len(recording.pairs) < MIN_PAIRS:
+        name, why = recording.skipped[0] if recording.skipped else ("", "")
+        cause = f"; {len(recording.skipped)} skipped, e.g. {name}: {why}" if why else " (record a little longer)"
+        raise UserError(f"{recording.root}: {len(recording.pairs)} usable pairs, fit needs at least {MIN_PAIRS}{cause}")
     inspection = inspect_recording(recording, registration=options.registration)
     split = split_recording(recording.pairs, options.holdout, options.gap_frames)
-    report = [f"{recording.root} ({recording.format})", *recording.notes, *inspection.lines(), split.line()]
-    for line in report:
+    checked = [*inspection.lines(), split.line()]
+    for line in checked:
         progress.say(line)
+    report = found + checked
     start = options.start_from
     start = None if start == "scratch" else Path(start) if start else default_start(options.bundled)
     config = _run_config(options, recording, split, inspection.colour_camera, start, run)
