@@ -18,6 +18,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import torch
 from PIL import Image
 from serving import DEFAULT_IMAGE, machine, median_ms
 
@@ -42,6 +43,21 @@ CONFIGS = [
         SHIPPED,
         ["generator.work_scale=1", "inference.median_radius=0"],
     ),
+    (
+        "bundled shape, 3x3 convolution then bilinear 2x upsampler (0.9.0), no median",
+        SHIPPED,
+        ["generator.upsampler=bilinear", "inference.median_radius=0"],
+    ),
+    (
+        "bundled shape, pixel-shuffle upsampler (ICNR), no median",
+        SHIPPED,
+        ["generator.upsampler=shuffle", "inference.median_radius=0"],
+    ),
+    (
+        "bundled shape, resize-then-convolution upsampler, no median",
+        SHIPPED,
+        ["generator.upsampler=resize", "inference.median_radius=0"],
+    ),
     ("paper size: 32 filters, 4 downsamplings, 9 blocks, full resolution", CONFIGS_DIR / "7scenes-paper.yaml", []),
     *(
         (
@@ -54,20 +70,40 @@ CONFIGS = [
 ]
 
 
+def multiply_adds(graph: torch.nn.Module, rgb: np.ndarray) -> int:
+    """The convolutions' multiply-adds for one photo: each output value costs its kernel's taps over its inputs."""
+    total = 0
+
+    def count(module: torch.nn.Module, inputs: tuple[torch.Tensor, ...], output: torch.Tensor) -> None:
+        nonlocal total
+        taps = module.weight[0].numel() if isinstance(module, torch.nn.Conv2d) else module.weight[:, 0].numel()
+        values = output.numel() if isinstance(module, torch.nn.Conv2d) else inputs[0].numel() // inputs[0].shape[1]
+        total += values * taps * (1 if isinstance(module, torch.nn.Conv2d) else module.out_channels)
+
+    convolutions = [m for m in graph.modules() if isinstance(m, torch.nn.Conv2d | torch.nn.ConvTranspose2d)]
+    hooks = [m.register_forward_hook(count) for m in convolutions]
+    with torch.no_grad():
+        graph(torch.from_numpy(rgb.transpose(2, 0, 1).astype(np.float32)[None] / 127.5 - 1))
+    for hook in hooks:
+        hook.remove()
+    return total
+
+
 def measure(
     config: Path, overrides: list[str], rgb: np.ndarray, threads: int, repeats: int
-) -> tuple[int, float, float]:
-    """(weights, ONNX MB, median ms) of the config's generator, untrained."""
+) -> tuple[int, float, float, float]:
+    """(weights, G multiply-adds, ONNX MB, median ms) of the config's generator, untrained."""
     run = load_config(config, overrides)
-    graph = InferenceGraph(GlobalGenerator(run.generator), run.inference)
+    graph = InferenceGraph(GlobalGenerator(run.generator), run.inference).eval()
     weights = sum(p.numel() for p in graph.parameters())
+    macs = multiply_adds(graph, rgb) / 1e9
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "generator.onnx"
         export_onnx(graph, path)
         size_mb = path.stat().st_size / 1e6
         runner = OnnxGenerator(path, graph.input_multiple, threads)
         ms = median_ms(lambda: runner.predict_raw(rgb), repeats)
-    return weights, size_mb, ms
+    return weights, macs, size_mb, ms
 
 
 def main() -> None:
@@ -80,11 +116,16 @@ def main() -> None:
 
     rgb = np.asarray(Image.open(args.image).convert("RGB").resize((640, 480)))
     rows = [(label, *measure(path, extra, rgb, args.threads, args.repeats)) for label, path, extra in CONFIGS]
-    ref = rows[0][3]
-    lines = [f"| {label} | {w / 1e6:.2f} M | {mb:.1f} | {ms:.0f} | {ms / ref:.1f}x |" for label, w, mb, ms in rows]
+    ref, ref_macs = rows[0][4], rows[0][2]
+    lines = [
+        f"| {label} | {w / 1e6:.2f} M | {macs:.2f} ({macs / ref_macs:.2f}x) | {mb:.1f} | {ms:.0f} | {ms / ref:.2f}x |"
+        for label, w, macs, mb, ms in rows
+    ]
     table = (
         f"Machine: {machine()}; ONNX Runtime on {args.threads} threads, median of {args.repeats}, 640x480.\n\n"
-        "| generator | weights | ONNX MB | median ms | vs bundled |\n|---|---|---|---|---|\n" + "\n".join(lines) + "\n"
+        "| generator | weights | G multiply-adds | ONNX MB | median ms | vs bundled |\n|---|---|---|---|---|---|\n"
+        + "\n".join(lines)
+        + "\n"
     )
     print(table)
     if args.markdown:

@@ -51,13 +51,14 @@ class GeneratorSpec(Strict):
         "room-scale cues that fix a view's absolute depth, with the same weights and compute",
     )
 
-    upsampler: Literal["transpose", "shuffle", "resize"] = Field(
+    upsampler: Literal["transpose", "bilinear", "shuffle", "resize"] = Field(
         "transpose",
         description="how each decoder stage doubles the resolution. transpose: pix2pixHD's 3x3 transposed "
-        "convolution, whose uneven overlap leaves a periodic ripple (periods 2, 4, 8 px) in depth; shuffle: a "
-        "3x3 convolution to 4x the channels then a pixel shuffle, ICNR-initialised so it starts free of the "
-        "checkerboard, at a transposed convolution's cost; resize: nearest-neighbour 2x then a 3x3 convolution, "
-        "ripple-free but at 4x the stage's multiply-adds",
+        "convolution, whose uneven overlap leaves a periodic ripple (periods 2, 4, 8 px) in depth; bilinear: a "
+        "3x3 convolution, then a bilinear 2x resize, which has no ripple by construction and the same "
+        "multiply-adds; shuffle: a 3x3 convolution to 4x the channels and a pixel shuffle, ICNR-initialised; "
+        "resize: a nearest 2x resize, then a 3x3 convolution (the last two are ripple-free too, at 4x the stage's "
+        "multiply-adds: bench/generator_size.py)",
     )
 
     @model_validator(mode="after")

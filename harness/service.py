@@ -123,6 +123,19 @@ def running_service(**env: str):
         service.stop(timeout_s=10)
 
 
+def served_depths(model: str, photos: list[Path]) -> list[np.ndarray]:
+    """``/depth`` (metres) of each photo file from a service started for the bundled ``model`` (``name:version``)."""
+    depths = []
+    with running_service(bundled_registry=BUNDLED_REGISTRY, model=model) as service:
+        for photo in photos:
+            response = httpx.post(
+                f"{service.url}/depth", files={"image": (photo.name, photo.read_bytes())}, timeout=120
+            )
+            response.raise_for_status()
+            depths.append(np.asarray(Image.open(io.BytesIO(response.content)), dtype=np.float64) / 1000)
+    return depths
+
+
 def server_timing(response: httpx.Response) -> dict[str, float]:
     """The service's ``Server-Timing`` header as {stage: ms}, in the order the stages ran."""
     stages = {}

@@ -156,15 +156,15 @@ def test_two_nodes_on_loopback_end_with_identical_weights(tmp_path):
 
 
 def test_a_run_that_swaps_the_upsampler_starts_from_every_other_layer(trained_checkpoint):
-    """0.9.0 starts from 0.8.1 with a pixel-shuffle upsampler: the encoder, residual blocks and output layer
-    carry over; the upsampling layers keep their fresh ICNR start. Any other difference is refused."""
+    """0.9.0 starts from 0.8.1 with another upsampler: the encoder, residual blocks and output layer carry
+    over; the upsampling layers keep their fresh start. Any other difference is refused."""
     from contract.errors import UserError
     from trainer.checkpoint import load_weights, start_weights
     from trainer.gan import init_weights
     from trainer.networks import GlobalGenerator
 
     given = load_weights(trained_checkpoint)
-    spec = given.config.generator.model_copy(update={"upsampler": "shuffle"})
+    spec = given.config.generator.model_copy(update={"upsampler": "bilinear"})
     generator = GlobalGenerator(spec)
     generator.apply(init_weights)
     fresh = {key: tensor.clone() for key, tensor in generator.state_dict().items()}

@@ -54,6 +54,10 @@ def upsampler(kind: str, channels: int) -> nn.Module:
     out = channels // 2
     if kind == "transpose":
         return nn.ConvTranspose2d(channels, out, 3, stride=2, padding=1, output_padding=1)
+    if kind == "bilinear":
+        return nn.Sequential(
+            nn.Conv2d(channels, out, 3, padding=1), nn.Upsample(scale_factor=2, mode="bilinear", align_corners=False)
+        )
     if kind == "shuffle":
         return nn.Sequential(nn.Conv2d(channels, out * 4, 3, padding=1), nn.PixelShuffle(2))
     return nn.Sequential(nn.Upsample(scale_factor=2, mode="nearest"), nn.Conv2d(channels, out, 3, padding=1))
