@@ -11,8 +11,8 @@ same frames shows (its row). The bundled generators run at half the photo's reso
 ``--checkpoints`` adds training checkpoints, run in process (eager PyTorch, the inference graph export
 writes), so a run can be checked for ripple before it is published. ``--render`` writes, for each
 version, frame 900's served depth as a surface lit by its normals (the point cloud's shape seen from
-the camera), beside the photo: the wall, the table and the cabinet fronts are flat, and ripple shows on
-them as a grid of stripes.
+the camera): the wall, the table and the cabinet fronts are flat, and ripple shows on them as a grid of
+stripes.
 """
 
 from __future__ import annotations
@@ -79,11 +79,11 @@ def shaded(depth: np.ndarray, camera: Intrinsics) -> np.ndarray:
 
 
 def render(version: str, depth: np.ndarray, out: Path) -> Path:
-    """Frame ``RENDERED_FRAME``'s served depth as a surface lit by its normals, beside the photo, as a PNG."""
+    """Frame ``RENDERED_FRAME``'s served depth as a surface lit by its normals, as a PNG (no dataset pixels in it:
+    the photo stays out, as 7-Scenes' licence asks)."""
     camera = Intrinsics(530.0, 530.0, 314.5, 239.0, 640, 480)  # the bundled versions' card camera
-    photo = np.asarray(Image.open(SEVEN_SCENES / f"frame-{RENDERED_FRAME:06d}.color.jpg").convert("RGB"))
     path = out / f"ripple-{version}.png"
-    Image.fromarray(np.concatenate([photo, shaded(depth, camera)], axis=1)).save(path)
+    Image.fromarray(shaded(depth, camera)).save(path)
     return path
 
 

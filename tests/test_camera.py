@@ -24,7 +24,9 @@ from harness.service import BUNDLED_REGISTRY, running_service
 from trainer.data.frames import read_depth_png
 from trainer.metrics import MetricAccumulator
 
-BUNDLED = load_card(REPO / "weights" / "rgb2cloud-7scenes" / "0.8.1")
+#: The bundled default: the newest bundled version, what `make serve` serves.
+BUNDLED = load_card(REPO / "weights" / "rgb2cloud-7scenes" / "0.9.0")
+MODEL = f"{BUNDLED.name}:{BUNDLED.version}"
 KITCHEN = Intrinsics(fx=530.0, fy=530.0, cx=314.5, cy=239.0, width=640, height=480)
 #: Every 15th test frame: ten views of the kitchen the model never trained on.
 FRAMES = range(850, 1000, 15)
@@ -140,15 +142,15 @@ def test_exif_focal_length_from_the_focal_plane_or_35mm_equivalent_and_turned_wi
 
 @pytest.fixture(scope="module")
 def bundled_service():
-    with running_service(bundled_registry=BUNDLED_REGISTRY, model="rgb2cloud-7scenes:0.8.1", threads="2") as service:
+    with running_service(bundled_registry=BUNDLED_REGISTRY, model=MODEL, threads="2") as service:
         yield service.url
 
 
 @pytest.mark.slow
 def test_enlarged_frames_with_their_focal_length_keep_their_delta1(bundled_service):
     """With its focal length (query or EXIF) an enlarged frame scores as its centre crop does, and far better
-    than without; at 1.25x within 0.03 of the whole frame. At 1.5x the narrower view itself costs more:
-    the centre crop, shown as it is, scores the same."""
+    than without; at 1.25x and at 1.5x within 0.03 of the whole frame (0.9.0 was trained on views of 50-100%
+    of the frame; 0.8.1, on whole frames only, lost 0.062 at 1.5x: docs/api.md)."""
     base = served_delta1(bundled_service, 1.0, "none")
     ways = ("query", "exif", "none", "crop")
     rows = {1.0: dict.fromkeys(ways, base)}
@@ -162,7 +164,7 @@ def test_enlarged_frames_with_their_focal_length_keep_their_delta1(bundled_servi
         row = rows[factor]
         assert abs(row["query"] - row["crop"]) <= 0.01 and abs(row["exif"] - row["crop"]) <= 0.01, rows
         assert row["query"] >= row["none"] + 0.05, rows
-    assert rows[1.25]["query"] >= base - 0.03, rows
+    assert rows[1.25]["query"] >= base - 0.03 and rows[1.5]["query"] >= base - 0.03, rows
     assert rows[1.5]["none"] < base - 0.15, rows  # without its focal length, the longer lens misleads the model
 
 
@@ -200,12 +202,12 @@ def served_frames_delta1(url: str) -> tuple[float, set[str]]:
 def test_a_photo_shrunk_past_the_pixel_bound_says_so_and_what_it_costs(bundled_service):
     """RGB2CLOUD_INFERENCE_MAX_PIXELS below the model's own camera makes the generator see every photo smaller,
     so farther, than in training: ``X-Focal-Ratio`` says how much. Measured (docs/api.md): 0.75 costs the
-    bundled model nothing measurable (it pools its input by 2 anyway), 0.5 about 0.01 δ1."""
+    bundled model nothing measurable (it pools its input by 2 anyway), 0.5 about 0.02 δ1."""
     rows = {"1.0000": served_frames_delta1(bundled_service)}
     for ratio in (0.75, 0.5):
         bound = str(round(640 * 480 * ratio**2))
         with running_service(
-            bundled_registry=BUNDLED_REGISTRY, model="rgb2cloud-7scenes:0.8.1", threads="2", inference_max_pixels=bound
+            bundled_registry=BUNDLED_REGISTRY, model=MODEL, threads="2", inference_max_pixels=bound
         ) as shrunk:
             rows[f"{ratio:.4f}"] = served_frames_delta1(shrunk.url)
     print("\n| X-Focal-Ratio | δ1 on RedKitchen test frames 850-999, every 15th |\n|---|---|")
