@@ -111,11 +111,12 @@ def save_png16(path: Path, array: np.ndarray) -> None:
 def trained_checkpoint(tmp_path_factory) -> Path:
     """A tiny generator trained for a few steps on real frames (for export and evaluate tests).
 
-    It works at half the input's resolution (``work_scale`` 2), as the bundled default
-    does, so export parity and the service cover the pool-in, upsample-out graph.
+    It works at half the input's resolution (``work_scale`` 2) and trains on views of mixed extent, as the
+    bundled default does, so export parity and the service cover the pool-in, upsample-out graph.
     """
     out = tmp_path_factory.mktemp("tiny-run")
     config = tiny_config(out / "run", train={"steps": 6}, generator={"work_scale": 2})
+    config["data"]["transform"].update(extent=[0.5, 1.0], whole_share=0.5)  # views of mixed extent, as 0.9.0's
     config = write_config(out / "config.yaml", config)
     run_cli("train", str(config))
     return out / "run" / "checkpoints" / "last.pt"

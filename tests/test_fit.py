@@ -136,6 +136,8 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
     assert card.int8.frames_from == ["train.csv all"]  # calibrated on the run folder's train part
     optim = card.training.config["optim"]
     assert (optim["lr"], optim["beta1"]) == (0.0005, 0.9)  # and Adam set for a regression
+    transform = card.training.config["data"]["transform"]
+    assert (transform["extent"], transform["whole_share"]) == ([1.0, 1.0], 0.0)  # whole frames, whatever the start's
     # The exact commands to serve it, and the service does.
     assert f"RGB2CLOUD_REGISTRY={own} RGB2CLOUD_MODEL=my-room:0.1.0 make serve" in stdout
     assert "/depth?model=my-room:0.1.0" in stdout

@@ -239,7 +239,15 @@ def _run_config(
         "train": [{**source, "root": str(manifests["train"])}],
         "val": [{**source, "root": str(manifests["selection"])}],
         "val_scale": scale,
-        "transform": {**tree["data"]["transform"], "size": size, "scale": [scale / work, 1.1 * scale / work]},
+        # Whole frames only: a site model serves its own camera's photos, and views narrower than the frame
+        # cost fits from 0.9.0 0.036 δ1 on aims-lab (docs/quality.md), as crops alone did (docs/research.md).
+        "transform": {
+            **tree["data"]["transform"],
+            "size": size,
+            "scale": [scale / work, 1.1 * scale / work],
+            "extent": [1.0, 1.0],
+            "whole_share": 0.0,
+        },
         "eval_min_m": tree["data"]["eval_min_m"],
         "eval_max_m": tree["data"]["eval_max_m"],
     }
