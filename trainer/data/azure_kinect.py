@@ -29,7 +29,7 @@ import numpy as np
 from contract.errors import UserError
 from contract.geometry import Intrinsics
 from trainer.data.folders import CameraFile
-from trainer.data.frames import DEFAULT_MAX_FRAMES, PairsReader, kept_note, spread, written_pairs
+from trainer.data.frames import DEFAULT_MAX_FRAMES, PairsReader, kept_note, nearest_stamp, spread, written_pairs
 from trainer.data.kinect_calibration import (
     COLOUR_RESOLUTIONS,
     DEPTH_MODES,
@@ -219,15 +219,17 @@ class Pairs:
 
 def _pairs(path: Path, recording: Recording, stamps: dict[str, list[float]], options: KinectOptions) -> Pairs:
     colour, depth = stamps["colour"], np.asarray(stamps["depth"])
+    order = np.argsort(depth, kind="stable")  # file order to time order
+    ordered = depth[order]
     kept = spread(list(range(len(colour)))[:: max(1, options.every)], options.max_frames)
     matches, names, gaps, skipped = {}, {}, [], []
     for i in kept:
         name = f"{colour[i]:.6f}"
-        if not len(depth):
+        found = nearest_stamp(ordered, colour[i] + recording.delay_s)
+        if found is None:
             skipped.append((name, "no depth frames"))
             continue
-        j = int(np.argmin(np.abs(depth - (colour[i] + recording.delay_s))))
-        gap = abs(depth[j] - colour[i] - recording.delay_s)
+        j, gap = int(order[found[0]]), found[1]
         if gap <= options.max_gap_s:
             matches[i], names[i] = j, name
             gaps.append(gap * 1000)
@@ -272,7 +274,7 @@ def _write(
             if all(seen[k] >= last[k] for k in seen):
                 break
             continue
-        owners = [index] if kind == "colour" else wanted_depth[index]
+        owners = [index] if kind == "colour" else list(wanted_depth[index])
         try:
             frame = packet.decode()[0]
             if kind == "colour":
@@ -288,6 +290,9 @@ def _write(
             j = pairs.matches[i]
             if i in photos and j in depths and pairs.names[i] not in damaged:
                 written[i] = writer.write(pairs.names[i], photos.pop(i), depths[j])
+                wanted_depth[j].remove(i)
+                if not wanted_depth[j]:  # every photo that takes this depth is written: let it go
+                    del depths[j]
         if all(seen[k] >= last[k] for k in seen):
             break
     for i, name in pairs.names.items():

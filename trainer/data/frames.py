@@ -107,6 +107,18 @@ class PairsReader:
 WRITTEN_DEPTH_SCALE = 1000.0
 
 
+def nearest_stamp(ordered: np.ndarray, t: float) -> tuple[int, float] | None:
+    """The index in ``ordered`` (sorted times) of the time nearest ``t``, and how far it is; None when empty.
+
+    How a reader pairs a colour frame with the depth frame taken closest to it."""
+    j = int(np.searchsorted(ordered, t))
+    near = [k for k in (j - 1, j) if 0 <= k < len(ordered)]
+    if not near:
+        return None
+    best = min(near, key=lambda k: abs(ordered[k] - t))
+    return best, float(abs(ordered[best] - t))
+
+
 def spread(items: Sequence[T], count: int | None) -> list[T]:
     """At most ``count`` of ``items`` (all when ``count`` is None or 0), evenly spread from the first to the last."""
     if not count or len(items) <= count:

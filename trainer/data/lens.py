@@ -8,6 +8,7 @@ geometry, so every reader undoes the distortion here, with OpenCV, before depth 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -37,6 +38,14 @@ class Lens:
             return image
         import cv2
 
+        interpolation = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
+        return cv2.remap(image, *self._maps, interpolation, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+    @cached_property
+    def _maps(self) -> tuple[np.ndarray, np.ndarray]:
+        """Where each undistorted pixel is read from: built once per lens, not once per frame."""
+        import cv2
+
         k = self.camera
         matrix = np.array([[k.fx, 0, k.cx], [0, k.fy, k.cy], [0, 0, 1]], np.float64)
         coefficients = np.asarray(self.coefficients, np.float64)
@@ -49,5 +58,4 @@ class Lens:
             v, u = np.mgrid[0 : k.height, 0 : k.width]
             beyond = np.hypot((u - k.cx) / k.fx, (v - k.cy) / k.fy) > self.max_radius
             maps = tuple(np.where(beyond, np.float32(-1), m) for m in maps)
-        interpolation = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
-        return cv2.remap(image, *maps, interpolation, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        return maps

@@ -33,7 +33,7 @@ from PIL import Image
 
 from contract.errors import UserError
 from trainer.data.folders import CameraFile
-from trainer.data.frames import DEFAULT_MAX_FRAMES, PairsReader, spread, written_pairs
+from trainer.data.frames import DEFAULT_MAX_FRAMES, PairsReader, nearest_stamp, spread, written_pairs
 from trainer.data.rosbag_cameras import Geometry, camera_info_lens, same_camera
 from trainer.data.rosbag_extrinsics import depth_to_colour_extrinsics
 from trainer.data.rosbag_images import (
@@ -304,13 +304,11 @@ def _pair(
     matches, skipped = {}, []
     ordered = np.sort(np.asarray(depth))
     for i, t in colour.items():
-        j = int(np.searchsorted(ordered, t))
-        near = [ordered[k] for k in (j - 1, j) if 0 <= k < len(ordered)]
-        best = min(near, key=lambda d: abs(d - t), default=None)
-        if best is not None and abs(best - t) <= max_gap_s:
-            matches[i] = (t, float(best))
+        found = nearest_stamp(ordered, t)
+        if found is not None and found[1] <= max_gap_s:
+            matches[i] = (t, float(ordered[found[0]]))
         else:
-            gap = "no depth frames" if best is None else f"nearest depth {abs(best - t) * 1000:.0f} ms away"
+            gap = "no depth frames" if found is None else f"nearest depth {found[1] * 1000:.0f} ms away"
             skipped.append((f"{t:.6f}", gap))
     return matches, skipped
 

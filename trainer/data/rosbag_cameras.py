@@ -66,12 +66,6 @@ def camera_info_lens(
     return Lens(intrinsics, model, coefficients)
 
 
-def _same_camera(a: Intrinsics, b: Intrinsics) -> bool:
-    return (a.width, a.height) == (b.width, b.height) and np.allclose(
-        [a.fx, a.fy, a.cx, a.cy], [b.fx, b.fy, b.cx, b.cy], rtol=1e-4
-    )
-
-
 def same_camera(a: Intrinsics, b: Intrinsics) -> bool:
     """Whether two cameras are one: the same image size and intrinsics (to 1e-4)."""
     return (a.width, a.height) == (b.width, b.height) and np.allclose(
