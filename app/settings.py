@@ -103,3 +103,9 @@ class Settings(BaseSettings):
                 "RGB2CLOUD_PRECISION=int8 needs RGB2CLOUD_BACKEND=onnx: the int8 graphs run on ONNX Runtime only"
             )
         return self
+
+
+def inference_max_pixels() -> int:
+    """``RGB2CLOUD_INFERENCE_MAX_PIXELS`` as the service reads it: what ``evaluate``, ``fit``'s scores and int8
+    calibration resample photos by too, so a deployment that changes it gets tables of the depth it serves."""
+    return Settings().inference_max_pixels

@@ -179,10 +179,12 @@ DepthTopic = Annotated[
     str | None, typer.Option(help="a bag's depth image topic (default: found; aligned to colour preferred)")
 ]
 MaxGapMs = Annotated[
-    float, typer.Option(help="a bag's or Kinect file's colour and depth further apart than this are no pair", min=0)
+    float | None,
+    typer.Option(help="a bag's or Kinect file's colour and depth further apart than this are no pair (20)", min=0),
 ]
 MinConfidence = Annotated[
-    int, typer.Option(help="Stray Scanner, Record3D: keep depth pixels of this LiDAR confidence and up", min=0, max=2)
+    int | None,
+    typer.Option(help="Stray Scanner, Record3D: keep depth pixels of this LiDAR confidence and up (2)", min=0, max=2),
 ]
 Register = Annotated[
     str, typer.Option(help="auto: register depth to colour when a fitted colour camera aligns better; yes; no")
@@ -214,8 +216,8 @@ def fit(
     gap: Gap = None,
     color_topic: Annotated[str | None, typer.Option(help="a bag's colour image topic (default: found)")] = None,
     depth_topic: DepthTopic = None,
-    max_gap_ms: MaxGapMs = 20.0,
-    min_confidence: MinConfidence = 2,
+    max_gap_ms: MaxGapMs = None,
+    min_confidence: MinConfidence = None,
     every: Annotated[int, typer.Option(help="keep every Nth pair of a long recording", min=1)] = 1,
     max_frames: Annotated[
         int,
@@ -258,7 +260,7 @@ def fit(
             CameraFile(fx, fy, cx, cy, depth_scale),
             color_topic,
             depth_topic,
-            max_gap_ms / 1000,
+            None if max_gap_ms is None else max_gap_ms / 1000,
             min_confidence,
             every,
             max_frames or None,

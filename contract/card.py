@@ -125,6 +125,9 @@ class Metrics(BaseModel):
 class FitRecord(BaseModel):
     """How ``rgb2cloud fit`` made a model of one place."""
 
+    fit_id: str | None = Field(
+        None, description="the fit's own id (its fit.json's): which run published this version, wherever it ran"
+    )
     data: str = Field(description="the recording's path as given")
     start_from: str = Field(description="the published version whose generator it started from, or 'scratch'")
     start_model: str | None = Field(None, description="that version's NAME VERSION, from its card")

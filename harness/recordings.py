@@ -88,13 +88,20 @@ class BagWriter:
         distortion: tuple[str, tuple[float, ...]] = ("plumb_bob", (0.0,) * 5),
         size: tuple[int, int] | None = None,
         uncalibrated: bool = False,
+        rectified: Intrinsics | None = None,
     ) -> None:
-        """A CameraInfo for ``k``: ``distortion`` (model, D), another ``size`` than ``k``'s, or K all zeros."""
+        """A CameraInfo for ``k``: ``distortion`` (model, D), another ``size`` than ``k``'s, or K (and P) all zeros.
+
+        P, the rectified images' camera, is ``rectified`` (at ``k``'s size), else ``k`` itself, as drivers write it.
+        """
         types = self.store.types
-        matrix = np.array([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1], np.float64) * (0.0 if uncalibrated else 1.0)
+        scale = 0.0 if uncalibrated else 1.0
+        matrix = np.array([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1], np.float64) * scale
+        p = rectified or k
+        projection = np.array([p.fx, 0, p.cx, 0, 0, p.fy, p.cy, 0, 0, 0, 1, 0], np.float64) * scale
         roi = types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
         model, coefficients = distortion
-        fields = {"D": np.asarray(coefficients, np.float64), "K": matrix, "R": np.eye(3).ravel(), "P": np.zeros(12)}
+        fields = {"D": np.asarray(coefficients, np.float64), "K": matrix, "R": np.eye(3).ravel(), "P": projection}
         if not self.ros1:
             fields = {key.lower(): value for key, value in fields.items()}
         width, height = size or (k.width, k.height)

@@ -112,7 +112,9 @@ def test_exports_that_cannot_be_read_are_refused_in_one_line(tmp_path):
         read_stray_scanner(root, tmp_path / "a")
     root = write_stray_scanner(tmp_path / "scan2", mosd_frames(2), MOSD_CAMERA)
     (root / "rgb.mp4").write_bytes(b"\0\0\0\x18ftypmp42" + b"\x13" * 500)
-    with pytest.raises(UserError, match=r"rgb.mp4: no frame could be decoded \(rgb.mp4 cannot be decoded past frame 0"):
+    with pytest.raises(
+        UserError, match=r"rgb.mp4: no frame could be decoded \(rgb.mp4 is damaged: it cannot be decoded past frame 0"
+    ):
         read_stray_scanner(root, tmp_path / "b")
 
 
@@ -153,7 +155,7 @@ def test_a_damaged_record3d_export_is_refused_in_one_line(tmp_path):
     with zipfile.ZipFile(path, "a") as archive:  # a depth map cut short inside an intact zip
         archive.writestr("rgbd/5.jpg", archive.read("rgbd/0.jpg"))
         archive.writestr("rgbd/5.depth", archive.read("rgbd/0.depth")[:100])
-    with pytest.raises(UserError, match=r"room.r3d: rgbd/5.depth (is damaged|holds \d+ values)"):
+    with pytest.raises(UserError, match=r"room.r3d: (damaged: rgbd/5.depth|rgbd/5.depth holds \d+ values)"):
         read_record3d(path, tmp_path / "b")
 
 

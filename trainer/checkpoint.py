@@ -17,6 +17,7 @@ import torch
 
 from contract.card import TORCHSCRIPT_FILE, load_card, verify_files
 from contract.errors import UserError
+from contract.geometry import Intrinsics
 from contract.spec import GeneratorSpec, InferenceSettings
 from trainer.config import RunConfig, migrate_config
 from trainer.inference import InferenceGraph
@@ -64,6 +65,9 @@ class Checkpoint:
     train_seconds: float
     stretches: list[HardwareStretch]
     config: dict[str, Any]
+    #: The camera the generator is trained at (``trainer.train.model_camera``), kept so that evaluating or
+    #: exporting the checkpoint never reopens its training data to learn it.
+    camera: Intrinsics | None
 
     @property
     def hardware(self) -> str:
@@ -79,6 +83,7 @@ class Checkpoint:
             "hardware": self.hardware,
             "hardware_segments": [[s.first_step, s.hardware] for s in self.stretches],
             "config": self.config,
+            "camera": None if self.camera is None else asdict(self.camera),
         }
 
     @classmethod
@@ -91,6 +96,7 @@ class Checkpoint:
             train_seconds=state["train_seconds"],
             stretches=[HardwareStretch(first, hardware) for first, hardware in segments],
             config=state["config"],
+            camera=None if state.get("camera") is None else Intrinsics(**state["camera"]),
         )
 
 
@@ -103,6 +109,8 @@ class TrainedWeights:
     step: int
     train_seconds: float
     hardware: str
+    #: The camera the generator was trained at: a checkpoint's own, or a version's card camera.
+    camera: Intrinsics
     #: ``NAME VERSION`` when read from a published version folder.
     published: str | None = None
     #: The settings it runs with: a published version's as exported, else its run config's.
@@ -130,6 +138,11 @@ def load_weights(path: Path) -> TrainedWeights:
     if path.is_dir():
         return _published_weights(path)
     checkpoint = load_checkpoint(path)
+    if checkpoint.camera is None:
+        raise UserError(
+            f"{path}: this checkpoint does not say which camera it was trained at (it was saved before "
+            "checkpoints did); continue its training with --resume, and its next checkpoint will"
+        )
     config = RunConfig.model_validate(migrate_config(checkpoint.config))
     return TrainedWeights(
         checkpoint.generator,
@@ -137,6 +150,7 @@ def load_weights(path: Path) -> TrainedWeights:
         checkpoint.step,
         checkpoint.train_seconds,
         checkpoint.hardware,
+        checkpoint.camera,
         inference=config.inference,
     )
 
@@ -189,6 +203,7 @@ def _published_weights(version_dir: Path) -> TrainedWeights:
         card.training.steps,
         card.training.duration_s,
         card.training.hardware,
+        card.camera,
         published=f"{card.name} {card.version}",
         inference=card.inference,  # as exported, which may differ from the training config's
     )

@@ -9,20 +9,21 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 from tqdm import tqdm
 
+from app.settings import inference_max_pixels
 from contract.card import METRIC_KEYS, ONNX_FILE, PAPER_METRICS, load_card, verify_files
 from contract.errors import UserError
 from contract.geometry import ColourCamera, Intrinsics
 from contract.resample import DepthRun, depth_at_photo
 from contract.runtime import OnnxGenerator, Precision
 from trainer.checkpoint import load_graph
-from trainer.config import DataSource, RunConfig
+from trainer.config import DataSource
 from trainer.data.formats import describe, open_source
 from trainer.data.frames import Frame
 from trainer.inference import EagerGenerator
@@ -69,9 +70,11 @@ class Predictor:
     run: DepthRun
     camera: Intrinsics
     label: str
+    #: The service's ``inference_max_pixels``, read where the predictor is made.
+    max_pixels: int = field(default_factory=inference_max_pixels)
 
     def __call__(self, rgb: np.ndarray, photo: Intrinsics) -> np.ndarray:
-        return depth_at_photo(self.run, rgb, photo, self.camera)[0]
+        return depth_at_photo(self.run, rgb, photo, self.camera, self.max_pixels)[0]
 
 
 #: What ``evaluate_frames`` scores: metres at the photo's size from a photo and the camera that took it.
@@ -158,23 +161,7 @@ def load_predictor(path: Path, inference: dict[str, Any] | None = None, precisio
         label = f"{weights.published} (eager{how})"
     else:
         label = f"rgb2cloud ({_run_name(path)}, step {weights.step}{how})"
-    camera = load_card(path).camera if path.is_dir() else model_camera(weights.config)
-    return Predictor(lambda rgb: weights.config.depth.decode(runner.predict_raw(rgb)), camera, label)
-
-
-def model_camera(config: RunConfig) -> Intrinsics:
-    """The camera a run's generator was trained at: its first source's, at the run's ``val_scale``.
-
-    Training crops and validation frames are resized by ``val_scale`` (the exported graph's
-    input scale), so this is the focal length the generator learned: the card's camera, and the
-    one every photo is resampled to. ``rgb2cloud fit`` trains a large recording at a smaller
-    scale; its card must name that camera, not the recording's.
-    """
-    native = open_source(config.data.train[0])[0].intrinsics
-    scale = config.data.val_scale
-    if scale == 1.0:
-        return native
-    return native.resized(round(native.width * scale), round(native.height * scale))
+    return Predictor(lambda rgb: weights.config.depth.decode(runner.predict_raw(rgb)), weights.camera, label)
 
 
 def _run_name(checkpoint: Path) -> str:

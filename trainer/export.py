@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from PIL import Image
 
+from app.settings import inference_max_pixels
 from contract.card import (
     INT8_ONNX_FILE,
     INT8_SAMPLE_FILE,
@@ -45,7 +46,6 @@ from trainer.checkpoint import load_graph
 from trainer.config import DataSource
 from trainer.data.formats import describe, open_source
 from trainer.data.frames import FrameReader
-from trainer.evaluate import model_camera
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.quantize import (
     CALIBRATION,
@@ -145,7 +145,7 @@ def publish_int8(
     int8 = folder / INT8_ONNX_FILE
     done = quantize_generator(folder / ONNX_FILE, int8, photos, multiple, CALIBRATION, FP32_NODES, QUANTISED_OPS)
     # The parity photo has no camera of its own: it is taken to have the model's field of view.
-    shown, _ = to_model_camera(image, camera.resized(image.shape[1], image.shape[0]), camera)
+    shown, _ = to_model_camera(image, camera.resized(image.shape[1], image.shape[0]), camera, inference_max_pixels())
     parity = int8_parity(folder / ONNX_FILE, folder / INT8_ONNX_FILE, shown, multiple, encoding)
     if parity["agreement"] < INT8_AGREEMENT:
         raise ParityError(
@@ -231,7 +231,7 @@ def export_and_publish(
     config = weights.config
     readers = [open_source(s) for s in config.data.train]
     data = data or [_data_ref(source, reader) for source, reader in zip(config.data.train, readers, strict=True)]
-    camera = model_camera(config)
+    camera = weights.camera
     with Image.open(parity_image) as im:
         image = np.asarray(im.convert("RGB"))
 

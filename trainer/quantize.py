@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import onnx
 
+from app.settings import inference_max_pixels
 from contract.codec import DepthEncoding
 from contract.geometry import Intrinsics
 from contract.resample import to_model_camera
@@ -96,11 +97,11 @@ def calibration_frames(readers: Sequence[FrameReader], count: int, camera: Intri
     resampled to the model's ``camera`` by the one rescale rule, exactly as the service shows it photos."""
     frames = [(reader, i) for reader in readers for i in range(len(reader))]
     picks = np.linspace(0, len(frames) - 1, min(count, len(frames))).round().astype(int)
-    photos = []
+    photos, max_pixels = [], inference_max_pixels()
     for pick in picks:
         reader, index = frames[pick]
         frame = reader[index]
-        photos.append(to_model_camera(frame.rgb, frame.intrinsics, camera)[0])
+        photos.append(to_model_camera(frame.rgb, frame.intrinsics, camera, max_pixels)[0])
     return photos
 
 

@@ -50,7 +50,7 @@ from trainer.devices import (
     setup_distributed,
     unwrap,
 )
-from trainer.evaluate import Predictor, evaluate_frames, model_camera
+from trainer.evaluate import Predictor, evaluate_frames
 from trainer.gan import Autocast, build_networks, gan_step
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.losses import GANLoss
@@ -156,7 +156,8 @@ class Run:
     stretches: list[HardwareStretch] = field(default_factory=list)
     writer: SummaryWriter | None = None
     val_frames: ConcatFrames | None = None
-    #: The camera the generator is trained at (``model_camera``): validation resamples every frame to it.
+    #: The camera the generator is trained at (``model_camera``): validation resamples every frame to it, and
+    #: each checkpoint carries it.
     camera: Intrinsics | None = None
 
     @property
@@ -179,6 +180,7 @@ class Run:
             train_seconds=self.train_seconds,
             stretches=self.stretches,
             config=self.config.model_dump(mode="json"),
+            camera=self.camera,
         )
 
     def save(self, name: str) -> None:
@@ -230,14 +232,29 @@ def start_run(config: RunConfig, resume: bool, ddp: Distributed) -> Run:
         ids = [device.index] if device.type == "cuda" else None
         run.generator = DistributedDataParallel(generator, device_ids=ids)
         run.discriminator = DistributedDataParallel(discriminator, device_ids=ids)
+    run.camera = model_camera(config)
     if config.data.val:
         run.val_frames = ConcatFrames([open_source(s) for s in config.data.val])
-        run.camera = model_camera(config)
     if ddp.is_main:
         run.out.mkdir(parents=True, exist_ok=True)
         (run.out / "config.yaml").write_text(yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
         run.writer = SummaryWriter(run.out / "tensorboard", purge_step=run.step)
     return run
+
+
+def model_camera(config: RunConfig) -> Intrinsics:
+    """The camera a run's generator was trained at: its first source's, at the run's ``val_scale``.
+
+    Training crops and validation frames are resized by ``val_scale`` (the exported graph's
+    input scale), so this is the focal length the generator learned: the card's camera, and the
+    one every photo is resampled to. ``rgb2cloud fit`` trains a large recording at a smaller
+    scale; its card must name that camera, not the recording's.
+    """
+    native = open_source(config.data.train[0])[0].intrinsics
+    scale = config.data.val_scale
+    if scale == 1.0:
+        return native
+    return native.resized(round(native.width * scale), round(native.height * scale))
 
 
 def validate(run: Run) -> None:

@@ -29,7 +29,15 @@ import numpy as np
 from contract.errors import UserError
 from contract.geometry import Intrinsics
 from trainer.data.folders import CameraFile
-from trainer.data.frames import DEFAULT_MAX_FRAMES, PairsReader, kept_note, nearest_stamp, spread, written_pairs
+from trainer.data.frames import (
+    DEFAULT_MAX_FRAMES,
+    PairsReader,
+    damaged_note,
+    kept_note,
+    nearest_stamp,
+    spread,
+    written_pairs,
+)
 from trainer.data.kinect_calibration import (
     COLOUR_RESOLUTIONS,
     DEPTH_MODES,
@@ -39,7 +47,7 @@ from trainer.data.kinect_calibration import (
     mode_lens,
 )
 from trainer.data.lens import Lens
-from trainer.data.phone_frames import FrameWriter
+from trainer.data.pair_writer import PairWriter
 from trainer.registration import reproject_depth
 
 #: Colour and depth further apart than this (after the recorded depth delay) are not a pair.
@@ -82,7 +90,8 @@ def read_kinect(path: Path, out_dir: Path, options: KinectOptions | None = None)
     except UserError:
         raise
     except (av.error.FFmpegError, EOFError, OSError) as e:
-        raise UserError(f"{path}: not a readable Matroska recording ({type(e).__name__}: {e})") from None
+        why = getattr(e, "strerror", None) or "cut short"
+        raise UserError(f"{path}: not a readable Matroska recording ({why})") from None
     return written_pairs(
         path.name, written, recording.written_camera, pairs.skipped + damaged, _notes(recording, pairs, damaged)
     )
@@ -125,7 +134,9 @@ def _recording(container: Any, path: Path, options: KinectOptions) -> Recording:
     colour_lens = mode_lens(path, calibration, "colour", colour_sensor)
     notes = []
     if options.camera.sets_intrinsics:
-        colour_lens = replace(colour_lens, camera=options.camera.applied_to(colour_lens.camera))
+        k = colour_lens.camera
+        camera = CameraFile.of(k).merged(options.camera).intrinsics(k.width, k.height, path)
+        colour_lens = replace(colour_lens, camera=camera)
         k = colour_lens.camera
         notes.append(f"colour camera with the command line's: fx {k.fx:g}, fy {k.fy:g}, cx {k.cx:g}, cy {k.cy:g}")
     rotation, translation = depth_to_colour(path, calibration)
@@ -135,7 +146,7 @@ def _recording(container: Any, path: Path, options: KinectOptions) -> Recording:
         raise UserError(
             f"{path}: K4A_DEPTH_DELAY_NS {container.metadata['K4A_DEPTH_DELAY_NS']!r} is not a number"
         ) from None
-    size = FrameWriter.written_size(colour.width, colour.height)
+    size = PairWriter.written_size(colour.width, colour.height)
     return Recording(
         colour.index,
         depth.index,
@@ -252,7 +263,7 @@ def _write(
     """Decode the kept frames only (stopping after the last), register each depth, write each pair."""
     import av
 
-    writer = FrameWriter(out, *recording.colour_size)
+    writer = PairWriter(out, *recording.colour_size)
     camera = recording.written_camera
     wanted_depth: dict[int, list[int]] = {}
     for i, j in pairs.matches.items():
@@ -283,8 +294,8 @@ def _write(
                 metres = recording.depth_lens.undistorted(frame.to_ndarray().astype(np.float32) / 1000.0, nearest=True)
                 r, t = recording.rotation, recording.translation
                 depths[index] = reproject_depth(metres, recording.depth_lens.camera, camera, r, t)
-        except (av.error.FFmpegError, IndexError, ValueError) as e:
-            damaged.update({pairs.names[i]: f"{kind} frame damaged: {type(e).__name__}" for i in owners})
+        except (av.error.FFmpegError, IndexError, ValueError):
+            damaged.update({pairs.names[i]: f"{kind} frame damaged: FFmpeg cannot decode it" for i in owners})
             continue
         for i in owners:
             j = pairs.matches[i]
@@ -324,6 +335,5 @@ def _notes(recording: Recording, pairs: Pairs, damaged: list[tuple[str, str]]) -
         *r.notes,
     ]
     if damaged:
-        shown = ", ".join(f"{name} ({why})" for name, why in damaged[:3])
-        notes.append(f"damaged frames skipped: {len(damaged)} ({shown}{', ...' if len(damaged) > 3 else ''})")
+        notes.append(damaged_note(damaged))
     return notes

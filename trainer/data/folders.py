@@ -47,15 +47,19 @@ class CameraFile:
     cy: float | None = None
     depth_scale: float | None = None
 
+    @classmethod
+    def of(cls, camera: Intrinsics, depth_scale: float | None = None) -> CameraFile:
+        """A recording's own camera (and depth units), for the command line's values to override."""
+        return cls(camera.fx, camera.fy, camera.cx, camera.cy, depth_scale)
+
     def merged(self, overrides: CameraFile) -> CameraFile:
-        """These values with every value ``overrides`` sets taking precedence."""
+        """These values with every value ``overrides`` sets taking precedence: the one way an override applies.
+
+        Both are in the pixels of the same images, so a reader merges before it scales, crops or
+        registers anything, and scales its own camera to the images first where they disagree.
+        """
         pick = {k: v if v is not None else getattr(self, k) for k, v in vars(overrides).items()}
         return CameraFile(**pick)
-
-    def applied_to(self, camera: Intrinsics) -> Intrinsics:
-        """``camera`` with each intrinsic this sets in its place: overrides in the pixels of ``camera``'s image."""
-        values = {k: getattr(self, k) if getattr(self, k) is not None else getattr(camera, k) for k in INTRINSIC_KEYS}
-        return Intrinsics(**values, width=camera.width, height=camera.height)
 
     @property
     def sets_intrinsics(self) -> bool:

@@ -23,7 +23,7 @@ from trainer.data.folders import CameraFile, FoldersReader, colour_folder, is_fo
 from trainer.data.frames import DEFAULT_MAX_FRAMES, Frame, FrameReader, PairsReader, RecordedPair, kept_note, spread
 from trainer.data.manifest import ManifestReader
 from trainer.data.nyu import NyuReader
-from trainer.data.phone_frames import DEFAULT_MIN_CONFIDENCE, PhoneOptions
+from trainer.data.phone_options import DEFAULT_MIN_CONFIDENCE, PhoneOptions
 from trainer.data.record3d import is_record3d, read_record3d
 from trainer.data.rosbag import DEFAULT_MAX_GAP_S, BagOptions, is_bag, read_bag
 from trainer.data.sevenscenes import SevenScenesReader
@@ -38,13 +38,17 @@ WRITTEN = ("rosbag", "azurekinect", "strayscanner", "record3d")
 
 @dataclass(frozen=True)
 class ReadOptions:
-    """How to read a recording beyond its layout: the camera, a bag's topics and pairing, thinning."""
+    """How to read a recording beyond its layout: the camera, a bag's topics and pairing, thinning.
+
+    ``None`` is "not given": each format's reader has its own default, and an option given for a
+    format that has no use for it is refused (``refuse_unused``) rather than silently ignored.
+    """
 
     camera: CameraFile = field(default_factory=CameraFile)
     color_topic: str | None = None
     depth_topic: str | None = None
-    max_gap_s: float = DEFAULT_MAX_GAP_S
-    min_confidence: int = DEFAULT_MIN_CONFIDENCE
+    max_gap_s: float | None = None
+    min_confidence: int | None = None
     every: int = 1
     #: At most this many pairs, evenly spread (None or 0: all); readers that write frames write only these.
     max_frames: int | None = DEFAULT_MAX_FRAMES
@@ -114,6 +118,7 @@ def open_pairs(root: Path, format: str, options: ReadOptions, scratch: Path | No
         raise UserError(f"format {format!r}: expected one of {', '.join(FORMATS)}")
     if scratch is None and (format in WRITTEN or format == "nyu"):
         raise UserError(f"{root}: {format} frames are written out before training; fit one with rgb2cloud fit")
+    refuse_unused(root, format, options)
     if format in WRITTEN:
         reader = _written(root, format, options, Path(scratch) / f"{format}-frames")
     elif format == "folders":
@@ -133,6 +138,22 @@ def open_pairs(root: Path, format: str, options: ReadOptions, scratch: Path | No
     return reader
 
 
+#: The read options each format uses, by ``ReadOptions`` field and the flag that sets it.
+FORMAT_OPTIONS = {
+    "color_topic": ("--color-topic", ("rosbag",)),
+    "depth_topic": ("--depth-topic", ("rosbag",)),
+    "max_gap_s": ("--max-gap-ms", ("rosbag", "azurekinect")),
+    "min_confidence": ("--min-confidence", ("strayscanner", "record3d")),
+}
+
+
+def refuse_unused(root: Path, format: str, options: ReadOptions) -> None:
+    """A UserError for the first option given that ``format``'s reader has no use for."""
+    for key, (flag, formats) in FORMAT_OPTIONS.items():
+        if getattr(options, key) is not None and format not in formats:
+            raise UserError(f"{root}: {flag} does not apply to a {format} recording (only to {', '.join(formats)})")
+
+
 def open_recording(root: Path, format: str | None, options: ReadOptions, scratch: Path) -> Recording:
     """Every ``options.every``-th pair of the recording at ``root``, in any of ``FORMATS`` (detected if None)."""
     root = Path(root)
@@ -150,7 +171,7 @@ def open_recording(root: Path, format: str | None, options: ReadOptions, scratch
 def _overridden(pair: RecordedPair, camera: CameraFile) -> RecordedPair:
     """``pair`` with every intrinsic and the depth scale that ``camera`` sets."""
     k = pair.camera
-    own = CameraFile(k.fx, k.fy, k.cx, k.cy, pair.depth_scale)
+    own = CameraFile.of(k, pair.depth_scale)
     merged = own.merged(camera)
     if merged == own:
         return pair
@@ -164,17 +185,17 @@ def _written(root: Path, format: str, options: ReadOptions, out: Path) -> PairsR
     ``options.camera`` goes to the reader, which applies it to the recording's own camera (in the pixels of
     the images as recorded) before it registers, resizes or writes anything.
     """
+    gap = DEFAULT_MAX_GAP_S if options.max_gap_s is None else options.max_gap_s
     if format == "rosbag":
         topics = (options.color_topic, options.depth_topic)
-        bag = BagOptions(*topics, options.max_gap_s, options.every, options.max_frames, options.camera)
-        return read_bag(root, out, bag)
+        return read_bag(root, out, BagOptions(*topics, gap, options.every, options.max_frames, options.camera))
     if options.camera.depth_scale is not None:
         raise UserError(f"{root}: --depth-scale does not apply to a {format} recording: its format fixes the units")
     if format == "azurekinect":
-        kinect = KinectOptions(options.max_gap_s, options.every, options.max_frames, options.camera)
-        return read_kinect(root, out, kinect)
+        return read_kinect(root, out, KinectOptions(gap, options.every, options.max_frames, options.camera))
     read = read_stray_scanner if format == "strayscanner" else read_record3d
-    return read(root, out, PhoneOptions(options.every, options.max_frames, options.min_confidence, options.camera))
+    confidence = DEFAULT_MIN_CONFIDENCE if options.min_confidence is None else options.min_confidence
+    return read(root, out, PhoneOptions(options.every, options.max_frames, confidence, options.camera))
 
 
 def _nyu_files(root: Path, folder: Path) -> PairsReader:

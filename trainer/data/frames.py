@@ -15,6 +15,8 @@ from contract.geometry import Intrinsics
 
 T = TypeVar("T")
 
+#: The first bytes of every PNG file.
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 #: Raw depth values that mean "no reading" in Kinect-style 16-bit PNGs.
 MISSING_RAW = (0, 65535)
 #: The pixels fit trains a recording at (the service's 640x480): larger recordings are scaled to it.
@@ -132,6 +134,12 @@ def kept_note(total: int, kept: int, every: int, max_frames: int | None, unit: s
     if kept < len(range(0, total, max(1, every))):
         how += f", capped at {kept} evenly spread (--max-frames {max_frames}; 0 keeps all)"
     return f"kept {kept} of {total} {unit}: {how}"
+
+
+def damaged_note(damaged: list[tuple[str, str]]) -> str:
+    """The line fit prints for frames skipped as damaged: how many, and the first few with why."""
+    shown = ", ".join(f"{name} ({why})" for name, why in damaged[:3])
+    return f"damaged frames skipped: {len(damaged)} ({shown}{', ...' if len(damaged) > 3 else ''})"
 
 
 def written_pairs(

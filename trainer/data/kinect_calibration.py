@@ -65,9 +65,16 @@ def attached_calibration(container: Any, path: Path) -> dict[str, Any]:
     try:
         return json.loads(bytes(attached[0].data))["CalibrationInformation"]
     except (ValueError, KeyError, TypeError) as e:
-        raise UserError(
-            f"{path}: its calibration.json is not an Azure Kinect calibration ({type(e).__name__}: {e})"
-        ) from None
+        raise UserError(f"{path}: its calibration.json is not an Azure Kinect calibration ({_wrong(e)})") from None
+
+
+def _wrong(error: Exception) -> str:
+    """What a calibration.json that raised ``error`` lacks, in words."""
+    if isinstance(error, KeyError):
+        return f"it has no {error.args[0]!r} entry"
+    if isinstance(error, ValueError) and "JSON" in type(error).__name__ + str(error):
+        return "not JSON"
+    return "a value there is not a number, or a list of the wrong length"
 
 
 def _camera(path: Path, calibration: dict[str, Any], which: str) -> dict[str, Any]:
@@ -92,9 +99,7 @@ def mode_lens(path: Path, calibration: dict[str, Any], which: str, mode: SensorM
         radius = float(camera.get("MetricRadius", 0.0))
         cx, cy, fx, fy, k1, k2, k3, k4, k5, k6, _codx, _cody, p2, p1 = params[:14]
     except (KeyError, TypeError, ValueError) as e:
-        raise UserError(
-            f"{path}: its calibration.json's {which} camera is incomplete ({type(e).__name__}: {e})"
-        ) from None
+        raise UserError(f"{path}: its calibration.json's {which} camera is incomplete ({_wrong(e)})") from None
     if model != "CALIBRATION_LensDistortionModelBrownConrady":
         raise UserError(
             f"{path}: {which} lens model {model!r}: only CALIBRATION_LensDistortionModelBrownConrady is read"
@@ -124,9 +129,7 @@ def depth_to_colour(path: Path, calibration: dict[str, Any]) -> tuple[np.ndarray
                 (np.asarray(rt["Rotation"], float).reshape(3, 3), np.asarray(rt["Translation"], float).reshape(3))
             )
         except (KeyError, TypeError, ValueError) as e:
-            raise UserError(
-                f"{path}: its calibration.json's {which} pose is incomplete ({type(e).__name__}: {e})"
-            ) from None
+            raise UserError(f"{path}: its calibration.json's {which} pose is incomplete ({_wrong(e)})") from None
     (rd, td), (rc, tc) = poses
     rotation = rc @ rd.T
     return rotation, tc - rotation @ td

@@ -9,7 +9,7 @@ An ``.r3d`` file is a zip holding:
 - ``rgbd/N.conf``: its confidence (0, 1 or 2 per depth pixel), LZFSE-compressed uint8.
 
 Depth covers the same view as the photo at a coarser grid, so it is upsampled as a Stray Scanner
-recording's is, by the same writer (``trainer.data.phone_frames``): at the size fit trains at, with
+recording's is, by the same writer (``trainer.data.pair_writer``): at the size fit trains at, with
 the intrinsics scaled to match, and of a long recording an evenly spread cap of frames.
 """
 
@@ -25,8 +25,10 @@ from PIL import Image
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
+from trainer.data.folders import CameraFile
 from trainer.data.frames import PairsReader, written_pairs
-from trainer.data.phone_frames import FrameWriter, PhoneOptions
+from trainer.data.pair_writer import PairWriter
+from trainer.data.phone_options import PhoneOptions
 
 
 def is_record3d(path: Path) -> bool:
@@ -46,8 +48,9 @@ def read_record3d(path: Path, out: Path, options: PhoneOptions | None = None) ->
 def _read(archive: zipfile.ZipFile, path: Path, out: Path, options: PhoneOptions) -> PairsReader:
     metadata = _metadata(archive, path)
     width, height, depth_size = metadata["w"], metadata["h"], (metadata["dh"], metadata["dw"])
-    writer = FrameWriter(out, width, height)
-    camera = writer.camera(options.camera.applied_to(_intrinsics(path, metadata["K"], width, height)))
+    writer = PairWriter(out, width, height)
+    recorded = CameraFile.of(_intrinsics(path, metadata["K"], width, height))
+    camera = writer.camera(recorded.merged(options.camera).intrinsics(width, height, path))
     names = {info.filename for info in archive.infolist()}
     numbers = sorted(int(n[5:-4]) for n in names if n.startswith("rgbd/") and n.endswith(".jpg") and n[5:-4].isdigit())
     if not numbers:
@@ -62,8 +65,8 @@ def _read(archive: zipfile.ZipFile, path: Path, out: Path, options: PhoneOptions
         try:
             with Image.open(io.BytesIO(archive.read(f"rgbd/{number}.jpg"))) as im:
                 photo = im.convert("RGB")
-        except (OSError, ValueError, SyntaxError) as e:
-            skipped.append((str(number), f"rgbd/{number}.jpg is damaged: {e}"))
+        except (OSError, ValueError, SyntaxError):
+            skipped.append((str(number), f"damaged: rgbd/{number}.jpg is not a readable JPEG"))
             continue
         depth = _lzfse(archive, path, f"rgbd/{number}.depth", np.float32, depth_size)
         depth = np.where(np.isfinite(depth), depth, 0).astype(np.float32)
@@ -117,8 +120,13 @@ def _lzfse(archive: zipfile.ZipFile, path: Path, member: str, dtype: type, shape
 
     try:
         values = np.frombuffer(lzfse.decompress(archive.read(member)), dtype=dtype)
-    except (lzfse.error, zipfile.BadZipFile, EOFError) as e:
-        raise UserError(f"{path}: {member} is damaged: {e}") from None
+    except lzfse.error:
+        raise UserError(f"{path}: damaged: {member}'s LZFSE data cannot be decompressed") from None
+    except zipfile.BadZipFile as e:
+        why = "fails its checksum" if "CRC" in str(e) else "is not a readable zip member"
+        raise UserError(f"{path}: damaged: {member} {why}") from None
+    except EOFError:
+        raise UserError(f"{path}: damaged: {member} is cut short") from None
     if values.size != shape[0] * shape[1]:
         raise UserError(f"{path}: {member} holds {values.size} values, not {shape[1]}x{shape[0]}")
     return values.reshape(shape)

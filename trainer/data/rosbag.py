@@ -29,12 +29,20 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
 
 from contract.errors import UserError
 from trainer.data.folders import CameraFile
-from trainer.data.frames import DEFAULT_MAX_FRAMES, PairsReader, nearest_stamp, spread, written_pairs
-from trainer.data.rosbag_cameras import Geometry, camera_info_lens, same_camera
+from trainer.data.frames import (
+    DEFAULT_MAX_FRAMES,
+    PairsReader,
+    damaged_note,
+    kept_note,
+    nearest_stamp,
+    spread,
+    written_pairs,
+)
+from trainer.data.pair_writer import PairWriter
+from trainer.data.rosbag_cameras import Geometry, overridden_lens, recorded_lens, same_camera
 from trainer.data.rosbag_extrinsics import depth_to_colour_extrinsics
 from trainer.data.rosbag_images import (
     COLOUR_ENCODINGS,
@@ -45,6 +53,7 @@ from trainer.data.rosbag_images import (
     colour_image,
     decoded,
     depth_image,
+    frame_damage,
     message_size,
 )
 from trainer.registration import reproject_depth
@@ -52,8 +61,6 @@ from trainer.registration import reproject_depth
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 #: Colour and depth stamped further apart than this are not a pair (a 30 fps stream's frames are 33 ms apart).
 DEFAULT_MAX_GAP_S = 0.02
-#: Millimetres, what the pairs' depth files hold.
-DEPTH_SCALE = 1000.0
 
 
 @dataclass(frozen=True)
@@ -118,10 +125,13 @@ class BagOptions:
 def read_bag(path: Path, out_dir: Path, options: BagOptions | None = None) -> PairsReader:
     """The bag's colour frames with their nearest depth, depth in the colour camera, written under ``out_dir``.
 
-    A bag can be damaged in any byte (a recorder killed mid-write, a disk error): whatever its parser
-    raises is one line that names the bag, never a traceback.
+    A bag damaged in any byte (a recorder killed mid-write, a disk error) is one line that names the bag
+    and what is wrong, in words. Only what the bag libraries raise for damaged bytes is caught: a bug
+    in this reader keeps its traceback.
     """
     from rosbags.highlevel import AnyReader, AnyReaderError
+    from rosbags.rosbag1 import ReaderError as Ros1Error
+    from rosbags.rosbag2 import ReaderError as Ros2Error
     from rosbags.typesys import Stores, get_typestore
 
     options = options or BagOptions()
@@ -129,13 +139,42 @@ def read_bag(path: Path, out_dir: Path, options: BagOptions | None = None) -> Pa
     try:
         with AnyReader([source], default_typestore=get_typestore(Stores.LATEST)) as reader:
             return _read(reader, Path(path), Path(out_dir), options)
-    except UserError:
-        raise
-    except AnyReaderError as e:
-        raise UserError(f"{path}: not a readable ROS bag: {e}") from None
-    except Exception as e:  # a damaged bag reaches any corner of the parsers
-        detail = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
-        raise UserError(f"{path}: damaged, it cannot be read on ({detail})") from None
+    except (AnyReaderError, Ros1Error, Ros2Error) as e:
+        raise UserError(f"{path}: {bag_damage(str(e))}") from None
+    except (OSError, RuntimeError) as e:
+        if not _is_decompression_error(e):
+            raise
+        raise UserError(f"{path}: damaged: a compressed chunk cannot be decompressed") from None
+
+
+#: What the bag libraries say of damaged bytes, and the same in words (first match wins).
+BAG_DAMAGE = (
+    (r"Truncated record|Got only \d+ of requested", "damaged: a record claims more bytes than the file holds"),
+    (r"database disk image is malformed|file is not a database", "damaged: its sqlite3 database is malformed"),
+    (r"File end magic is invalid", "damaged: cut short (the MCAP file has no footer)"),
+    (r"index looks damaged|Header could not be read", "damaged: its index cannot be read (cut short?)"),
+    (r"Could not deserialize '([^']+)'", "damaged: a {0} message in it cannot be decoded"),
+    (r"Could not parse", "damaged: a message definition in it cannot be parsed"),
+)
+
+
+def bag_damage(message: str) -> str:
+    """What the bag libraries raised, in words: ``damaged: ...`` or ``not a readable ROS bag (...)``."""
+    import re
+
+    for pattern, words in BAG_DAMAGE:
+        if found := re.search(pattern, message):
+            return words.format(*found.groups())
+    detail = message.split("\n")[0].rstrip(".")
+    return f"not a readable ROS bag ({detail})"
+
+
+def _is_decompression_error(error: BaseException) -> bool:
+    """Whether an error is a bag chunk's failed decompression: lz4's RuntimeError, or bz2's OSError (no errno,
+    unlike a failed read or write of a file)."""
+    if isinstance(error, RuntimeError):
+        return str(error).startswith("LZ4F_")
+    return isinstance(error, OSError) and error.errno is None
 
 
 def _read(reader: Any, path: Path, out: Path, options: BagOptions) -> PairsReader:
@@ -143,12 +182,10 @@ def _read(reader: Any, path: Path, out: Path, options: BagOptions) -> PairsReade
     colour = _choose(path, streams, options.color_topic, "colour", ("color", "colour", "rgb"))
     depth = _choose(path, streams, options.depth_topic, "depth", ("aligned_depth_to_color", "depth"))
     (colour_topic, colour_info), (depth_topic, depth_info) = (_camera_info(reader, path, s) for s in (colour, depth))
-    notes: list[str] = []
-    colour_lens = camera_info_lens(path, colour_topic, colour_info, colour.image, notes, options.camera)
-    depth_lens = camera_info_lens(path, depth_topic, depth_info, depth.image, notes, CameraFile())
-    if options.camera.sets_intrinsics:
-        k = colour_lens.camera
-        notes.append(f"colour camera with the command line's: fx {k.fx:g}, fy {k.fy:g}, cx {k.cx:g}, cy {k.cy:g}")
+    camera_notes: list[str] = []
+    geometry, how = _geometry(
+        reader, path, (colour, colour_topic, colour_info), (depth, depth_topic, depth_info), options, camera_notes
+    )
     stamps = {s.topic: _stamps(reader, s.topic) for s in (colour, depth)}
     every = list(enumerate(stamps[colour.topic]))[:: max(1, options.every)]
     colour_stamps = dict(spread(every, options.max_frames))
@@ -160,35 +197,65 @@ def _read(reader: Any, path: Path, out: Path, options: BagOptions) -> PairsReade
             f"{options.max_gap_s * 1000:.0f} ms ({len(colour_stamps)} colour, {len(stamps[depth.topic])} depth "
             f"frames; e.g. {nearest}); pass --max-gap-ms to allow more"
         )
-    aligned = same_camera(colour_lens.camera, depth_lens.camera) or "aligned_depth_to_color" in depth.topic
-    transform, how = (np.eye(3), np.zeros(3)), "depth is aligned to colour in the bag"
-    if not aligned:
-        topics = sorted({(c.topic, c.msgtype) for c in reader.connections})
-        frames = (depth_info.header.frame_id, colour_info.header.frame_id)
-        read = partial(_topic_messages, reader)
-        transform, how = depth_to_colour_extrinsics(read, topics, depth.topic, colour.topic, *frames)
-    units = _depth_units_m(path, reader, depth, options.camera.depth_scale)
-    geometry = Geometry(depth_lens, colour_lens, *transform, units)
-    pairs, damaged = _write_pairs(reader, out, colour, depth, matches, geometry)
+    writer = PairWriter(out, geometry.colour.camera.width, geometry.colour.camera.height)
+    pairs, damaged = _write_pairs(reader, writer, colour, depth, matches, geometry)
     gaps_ms = [abs(c - d) * 1000 for c, d in matches.values()]
+    total = len(stamps[colour.topic])
     notes = [
         f"bag: colour {colour.topic} ({colour.encoding}, {colour.count} frames{_rate(stamps[colour.topic])}), "
         f"depth {depth.topic} ({depth.encoding}, {depth.count} frames{_rate(stamps[depth.topic])}), "
-        f"depth unit {units * 1000:g} mm",
-        f"paired within {options.max_gap_s * 1000:.0f} ms: {len(matches)} of {len(colour_stamps)} colour frames"
-        + (f" (every {options.every}th)" if options.every > 1 else "")
-        + (f" (capped at {len(colour_stamps)} evenly spread, --max-frames)" if len(colour_stamps) < len(every) else "")
-        + f", gap median {statistics.median(gaps_ms):.1f} ms, max {max(gaps_ms):.1f} ms",
-        f"registration: {how}",
-        *notes,
+        f"depth unit {geometry.units_m * 1000:g} mm",
+        f"paired within {options.max_gap_s * 1000:.0f} ms: {len(matches)} of {len(colour_stamps)} colour frames, "
+        f"gap median {statistics.median(gaps_ms):.1f} ms, max {max(gaps_ms):.1f} ms",
+        f"registration: {how}; written at {writer.size[0]}x{writer.size[1]}",
+        *camera_notes,
     ]
+    if len(colour_stamps) < total:
+        notes.append(kept_note(total, len(colour_stamps), options.every, options.max_frames))
     if damaged:
-        notes.append(
-            f"damaged frames skipped: {len(damaged)} ({', '.join(name for name, _ in damaged[:3])}"
-            + (", ..." if len(damaged) > 3 else "")
-            + ")"
-        )
-    return written_pairs(path.name, pairs, colour_lens.camera, skipped + damaged, notes)
+        notes.append(damaged_note(damaged))
+    return written_pairs(path.name, pairs, writer.camera(geometry.colour.camera), skipped + damaged, notes)
+
+
+def _geometry(
+    reader: Any,
+    path: Path,
+    colour: tuple[Stream, str, Any],
+    depth: tuple[Stream, str, Any],
+    options: BagOptions,
+    notes: list[str],
+) -> tuple[Geometry, str]:
+    """Both lenses, the depth-to-colour transform and the depth units, and how the depth reaches the colour camera.
+
+    The command line's intrinsics are the colour camera's, in its images' pixels. Depth already aligned
+    to colour (by its topic, or a CameraInfo equal to the colour one) takes the colour lens with them, so
+    an override never moves it; other depth is moved with the bag's extrinsics.
+    """
+    (colour_stream, colour_topic, colour_info), (depth_stream, depth_topic, depth_info) = colour, depth
+    recorded = recorded_lens(path, colour_topic, colour_info, colour_stream.image, notes)
+    colour_lens = overridden_lens(path, colour_topic, recorded, colour_stream.image, options.camera)
+    if options.camera.sets_intrinsics:
+        k = colour_lens.camera
+        notes.append(f"colour camera with the command line's: fx {k.fx:g}, fy {k.fy:g}, cx {k.cx:g}, cy {k.cy:g}")
+    units = _depth_units_m(path, reader, depth_stream, options.camera.depth_scale)
+    depth_lens = None
+    if "aligned_depth_to_color" not in depth_stream.topic:
+        depth_lens = recorded_lens(path, depth_topic, depth_info, depth_stream.image, notes)
+        if depth_lens is None:
+            raise UserError(
+                f"{path}: {depth_topic}: the depth camera's matrix K is all zeros, not a calibration; record a "
+                "calibrated camera_info for it, or depth aligned to colour"
+            )
+    if depth_lens is None or (recorded is not None and same_camera(recorded.camera, depth_lens.camera)):
+        how = "depth is aligned to colour in the bag"
+        return Geometry(colour_lens, colour_lens, np.eye(3), np.zeros(3), units, aligned=True), how
+    topics = sorted({(c.topic, c.msgtype) for c in reader.connections})
+    frames = (depth_info.header.frame_id, colour_info.header.frame_id)
+    read = partial(_topic_messages, reader)
+    (rotation, translation), how = depth_to_colour_extrinsics(
+        read, topics, depth_stream.topic, colour_stream.topic, *frames
+    )
+    return Geometry(depth_lens, colour_lens, rotation, translation, units, aligned=False), how
 
 
 def _streams(reader: Any) -> list[Stream]:
@@ -330,15 +397,18 @@ def _depth_units_m(path: Path, reader: Any, depth: Stream, depth_scale: float | 
 
 
 def _write_pairs(
-    reader: Any, out: Path, colour: Stream, depth: Stream, matches: dict[int, tuple[float, float]], geometry: Geometry
+    reader: Any,
+    writer: PairWriter,
+    colour: Stream,
+    depth: Stream,
+    matches: dict[int, tuple[float, float]],
+    geometry: Geometry,
 ) -> tuple[list[tuple[str, Path, Path]], list[tuple[str, str]]]:
-    """Write each matched pair's colour (as stored, or PNG) and depth (16-bit mm in the colour camera).
+    """Write each matched pair: the photo undistorted, depth registered to it, both at the written size.
 
-    Returns the pairs written and the damaged ones skipped, with why. A colour frame whose lens
-    distortion is undone is written as PNG.
+    Photos are written in a first pass and depth in a second, so no frame waits in memory for its partner.
+    Returns the pairs written and the damaged ones skipped, with why.
     """
-    (out / "color").mkdir(parents=True, exist_ok=True)
-    (out / "depth").mkdir(parents=True, exist_ok=True)
     wanted_colour = {i: f"{c:.6f}" for i, (c, _) in matches.items()}
     wanted_depth: dict[float, list[str]] = {}
     for i, (_, d) in matches.items():
@@ -352,39 +422,30 @@ def _write_pairs(
         if name is None:
             continue
         try:
-            image = colour_image(message, connection.msgtype)
+            photo = colour_image(message, connection.msgtype)
             if geometry.colour.model is not None:
-                image = geometry.colour.undistorted(decoded(image), nearest=False)
-            elif isinstance(image, tuple):
-                decoded(image)  # a photo that cannot be decoded is skipped here, not in training
+                photo = geometry.colour.undistorted(decoded(photo), nearest=False)
+            colour_files[name] = writer.photo(name, photo)[0]
         except FRAME_DAMAGE as e:
-            damaged[name] = f"colour frame damaged: {e}"
-            continue
-        if isinstance(image, tuple):
-            data, suffix = image
-            colour_files[name] = out / "color" / f"{name}{suffix}"
-            colour_files[name].write_bytes(data)
-        else:
-            colour_files[name] = out / "color" / f"{name}.png"
-            Image.fromarray(image).save(colour_files[name])
+            damaged[name] = f"colour frame {frame_damage(e)}"
+    written = writer.camera(geometry.colour.camera)
     for connection, bag_ns, message in _messages(reader, depth.topic):
-        names = wanted_depth.get(_stamp(message, bag_ns))
+        names = [name for name in wanted_depth.get(_stamp(message, bag_ns), []) if name not in damaged]
         if not names:
             continue
         try:
             metres = geometry.depth.undistorted(depth_image(message, connection.msgtype, geometry.units_m), True)
         except FRAME_DAMAGE as e:
-            damaged.update({name: f"depth frame damaged: {e}" for name in names})
+            damaged.update({name: f"depth frame {frame_damage(e)}" for name in names})
             continue
-        if geometry.moves:
+        if not (geometry.aligned and same_camera(geometry.depth.camera, written)):
             g = geometry
-            metres = reproject_depth(metres, g.depth.camera, g.colour.camera, g.rotation, g.translation)
-        millimetres = np.clip(np.rint(metres * DEPTH_SCALE), 0, 65535).astype(np.uint16)
+            metres = reproject_depth(metres, g.depth.camera, written, g.rotation, g.translation)
         for name in names:
-            Image.fromarray(millimetres).save(out / "depth" / f"{name}.png")
-    written = [
-        (name, colour_files[name], out / "depth" / f"{name}.png")
+            writer.depth(name, metres)
+    files = [
+        (name, colour_files[name], writer.out / "depth" / f"{name}.png")
         for name in wanted_colour.values()
         if name not in damaged
     ]
-    return written, sorted(damaged.items())
+    return files, sorted(damaged.items())

@@ -3,11 +3,15 @@
 A CameraInfo can disagree with its images: a driver reports the sensor's full size, a camera was never
 calibrated (K all zeros), or the lens distortion is left for the user to undo. Each is either made right
 (scaled to the images' size, undistorted with OpenCV before registration) or refused in one line.
+
+A rectified image (``image_rect``, as ROS's image_pipeline publishes it) is described by the same
+CameraInfo as the raw image it was made from: its ``D`` and ``K`` are the raw image's, and the
+rectified image's own camera is the left 3x3 of ``P``, with no distortion left to undo.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -15,36 +19,48 @@ import numpy as np
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.folders import CameraFile
+from trainer.data.folders import INTRINSIC_KEYS, CameraFile
 from trainer.data.lens import Lens
 
 #: CameraInfo distortion models this reader undoes, with OpenCV: the standard polynomial ones and the fisheye.
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
 
 
-def camera_info_lens(
-    path: Path, topic: str, info: Any, images: tuple[str, int, int], notes: list[str], override: CameraFile
-) -> Lens:
-    """The camera a CameraInfo describes, at its images' size, with ``override``'s intrinsics in place.
+def is_rectified(topic: str) -> bool:
+    """Whether an image topic holds rectified images (``image_rect``, ``image_rect_raw``, ``image_rect_color``)."""
+    return "image_rect" in topic.lower()
 
-    A CameraInfo for another size of the same images (a driver that reports the sensor's full size) is
-    scaled when the aspect ratio agrees, and refused when it does not; an uncalibrated one (K all zeros)
-    is refused unless the command line gives the intrinsics.
+
+def _field(info: Any, name: str) -> np.ndarray:
+    """A CameraInfo matrix by its ROS 2 (``k``) or ROS 1 (``K``) name."""
+    return np.asarray(getattr(info, name.lower()) if hasattr(info, name.lower()) else getattr(info, name), np.float64)
+
+
+def recorded_lens(path: Path, topic: str, info: Any, images: tuple[str, int, int], notes: list[str]) -> Lens | None:
+    """The camera a CameraInfo describes, at its images' size, with its lens; None when it is uncalibrated.
+
+    ``images`` is the image topic, its images' width and height (0, 0 where unknown). A CameraInfo for
+    another size of the same images (a driver that reports the sensor's full size) is scaled when the
+    aspect ratio agrees, and refused when it does not.
     """
-    k = np.asarray(info.k if hasattr(info, "k") else info.K, dtype=np.float64).reshape(3, 3)  # ROS 2 | ROS 1
-    width, height = int(info.width), int(info.height)
     image_topic, image_width, image_height = images
     image = (image_width, image_height)
-    if (width, height) == (0, 0) and 0 not in image:
+    rectified = is_rectified(image_topic)
+    matrix = _field(info, "K").reshape(3, 3)
+    if rectified:
+        projection = _field(info, "P").reshape(3, 4)[:, :3]
+        if projection[0, 0] > 0 and projection[1, 1] > 0:
+            matrix = projection
+        else:
+            notes.append(f"{image_topic}: rectified, but {topic}'s P is not set: its K is taken as the camera")
+    if not (matrix[0, 0] > 0 and matrix[1, 1] > 0):
+        return None
+    width, height = int(info.width), int(info.height)
+    if (width, height) == (0, 0):
         width, height = image
-    camera = CameraFile(float(k[0, 0]) or None, float(k[1, 1]) or None, float(k[0, 2]), float(k[1, 2]))
-    camera = camera.merged(override)
-    if not (camera.fx and camera.fy and camera.fx > 0 and camera.fy > 0 and width > 0 and height > 0):
-        raise UserError(
-            f"{path}: {topic}: the camera matrix K is not a calibration (fx {k[0, 0]:g}, fy {k[1, 1]:g}, "
-            f"{width}x{height}); record a calibrated camera_info, or pass --fx --fy --cx --cy for the colour camera"
-        )
-    intrinsics = Intrinsics(camera.fx, camera.fy, camera.cx, camera.cy, width, height)
+    if width <= 0 or height <= 0:
+        raise UserError(f"{path}: {topic} gives no image size and {image_topic}'s images cannot be measured")
+    intrinsics = Intrinsics(matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2], width, height)
     if 0 not in image and image != (width, height):
         if abs(image[0] / image[1] - width / height) > 0.01 * width / height:
             raise UserError(
@@ -53,8 +69,8 @@ def camera_info_lens(
             )
         intrinsics = intrinsics.resized(*image)
         notes.append(f"{topic}: its {width}x{height} camera scaled to {image_topic}'s {image[0]}x{image[1]} images")
-    coefficients = tuple(float(v) for v in (info.d if hasattr(info, "d") else info.D))
-    if not any(coefficients):
+    coefficients = tuple(float(v) for v in _field(info, "D"))
+    if rectified or not any(coefficients):
         return Lens(intrinsics)
     model = info.distortion_model
     if model not in DISTORTION_MODELS:
@@ -66,6 +82,30 @@ def camera_info_lens(
     return Lens(intrinsics, model, coefficients)
 
 
+def overridden_lens(
+    path: Path, topic: str, recorded: Lens | None, images: tuple[str, int, int], override: CameraFile
+) -> Lens:
+    """``recorded`` with the command line's intrinsics in place, in the pixels of the images as recorded.
+
+    The recorded camera is already at the images' size, so an override is never scaled; an uncalibrated
+    camera (``recorded`` None) needs all four values.
+    """
+    own = CameraFile.of(recorded.camera) if recorded is not None else CameraFile()
+    camera = own.merged(override)
+    missing = [key for key in INTRINSIC_KEYS if getattr(camera, key) is None]
+    if missing or not (camera.fx > 0 and camera.fy > 0):
+        raise UserError(
+            f"{path}: {topic}: the camera matrix K is all zeros, not a calibration; record a calibrated "
+            f"camera_info, or pass all of --fx --fy --cx --cy for the colour camera"
+            + (f" ({', '.join('--' + key for key in missing)} missing)" if override.sets_intrinsics else "")
+        )
+    width, height = (recorded.camera.width, recorded.camera.height) if recorded is not None else images[1:]
+    if width <= 0 or height <= 0:
+        raise UserError(f"{path}: {images[0]}'s images cannot be measured, so --fx --fy --cx --cy have no size")
+    intrinsics = Intrinsics(camera.fx, camera.fy, camera.cx, camera.cy, width, height)
+    return Lens(intrinsics) if recorded is None else replace(recorded, camera=intrinsics)
+
+
 def same_camera(a: Intrinsics, b: Intrinsics) -> bool:
     """Whether two cameras are one: the same image size and intrinsics (to 1e-4)."""
     return (a.width, a.height) == (b.width, b.height) and np.allclose(
@@ -75,16 +115,16 @@ def same_camera(a: Intrinsics, b: Intrinsics) -> bool:
 
 @dataclass(frozen=True)
 class Geometry:
-    """How a depth frame becomes depth in the colour camera: both lenses, the rigid transform, the units."""
+    """How a depth frame becomes depth in the colour camera: both lenses, the rigid transform, the units.
+
+    ``aligned``: the bag's depth is already in the colour camera's pixels (``aligned_depth_to_color``,
+    or both CameraInfos the same), so it shares the colour lens, command-line values and all, and is
+    never moved, only brought to the written size.
+    """
 
     depth: Lens
     colour: Lens
     rotation: np.ndarray
     translation: np.ndarray
     units_m: float
-
-    @property
-    def moves(self) -> bool:
-        """Whether depth must be reprojected at all (not when it is already in the colour camera)."""
-        identity = np.allclose(self.rotation, np.eye(3)) and np.allclose(self.translation, 0)
-        return not (identity and same_camera(self.depth.camera, self.colour.camera))
+    aligned: bool

@@ -16,12 +16,12 @@ import numpy as np
 from PIL import Image
 
 from contract.errors import UserError
+from trainer.data.frames import PNG_MAGIC
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 COLOUR_ENCODINGS = {"rgb8": (3, False), "bgr8": (3, True), "rgba8": (4, False), "bgra8": (4, True), "mono8": (1, False)}
 DEPTH_ENCODINGS = {"16UC1": np.uint16, "mono16": np.uint16, "32FC1": np.float32}
-PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 def message_size(message: Any, msgtype: str) -> tuple[int, int]:
@@ -37,11 +37,10 @@ def message_size(message: Any, msgtype: str) -> tuple[int, int]:
         return 0, 0
 
 
-def colour_image(message: Any, msgtype: str) -> tuple[bytes, str] | np.ndarray:
-    """A compressed frame's bytes and file suffix as stored, or a raw frame as HxWx3 uint8 RGB."""
+def colour_image(message: Any, msgtype: str) -> bytes | np.ndarray:
+    """A compressed frame's bytes as stored (JPEG or PNG), or a raw frame as HxWx3 uint8 RGB."""
     if msgtype == COMPRESSED:
-        data = bytes(message.data)
-        return data, ".png" if data[:8] == PNG_MAGIC else ".jpg"
+        return bytes(message.data)
     channels, bgr = COLOUR_ENCODINGS[message.encoding]
     rows = np.frombuffer(bytes(message.data), np.uint8).reshape(message.height, message.step)
     pixels = rows[:, : message.width * channels].reshape(message.height, message.width, channels)
@@ -51,11 +50,11 @@ def colour_image(message: Any, msgtype: str) -> tuple[bytes, str] | np.ndarray:
     return np.ascontiguousarray(rgb[..., ::-1] if bgr else rgb)
 
 
-def decoded(image: tuple[bytes, str] | np.ndarray) -> np.ndarray:
-    """``_colour_image``'s result as HxWx3 uint8 RGB (a compressed frame decoded)."""
+def decoded(image: bytes | np.ndarray) -> np.ndarray:
+    """``colour_image``'s result as HxWx3 uint8 RGB (a compressed frame decoded)."""
     if isinstance(image, np.ndarray):
         return image
-    with Image.open(io.BytesIO(image[0])) as im:
+    with Image.open(io.BytesIO(image)) as im:
         return np.asarray(im.convert("RGB"))
 
 
@@ -98,3 +97,14 @@ def depth_image(message: Any, msgtype: str, units_m: float) -> np.ndarray:
 
 #: What a damaged frame's bytes raise when decoded: its pair is skipped and named, and the rest go on.
 FRAME_DAMAGE = (OSError, ValueError, SyntaxError, struct.error, UserError)
+
+
+def frame_damage(error: BaseException) -> str:
+    """What is wrong with a frame that raised one of ``FRAME_DAMAGE``, in words: "damaged: ..."."""
+    if isinstance(error, UserError):
+        return f"damaged: {error}"
+    if isinstance(error, struct.error) or "truncated" in str(error):
+        return "damaged: cut short"
+    if isinstance(error, OSError | SyntaxError):  # PIL's UnidentifiedImageError is an OSError
+        return "damaged: not a readable JPEG or PNG"
+    return "damaged: it holds fewer or other bytes than its size and encoding say"

@@ -12,7 +12,7 @@ A Stray Scanner export is a folder (the app's format document, strayrobots/scann
 The video is decoded with PyAV: it gives every frame in order from FFmpeg's decoders (the app
 writes HEVC) without OpenCV's GUI and image-processing weight, and the wheel carries FFmpeg.
 Each kept frame is written at the size fit trains at, by the writer both phone readers share
-(``trainer.data.phone_frames``); of a long recording, an evenly spread cap of frames is kept.
+(``trainer.data.pair_writer``); of a long recording, an evenly spread cap of frames is kept.
 """
 
 from __future__ import annotations
@@ -27,8 +27,10 @@ from PIL import Image
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
+from trainer.data.folders import CameraFile
 from trainer.data.frames import PairsReader, written_pairs
-from trainer.data.phone_frames import FrameWriter, PhoneOptions
+from trainer.data.pair_writer import PairWriter
+from trainer.data.phone_options import PhoneOptions
 
 if TYPE_CHECKING:
     import av
@@ -90,8 +92,9 @@ def read_stray_scanner(root: Path, out: Path, options: PhoneOptions | None = Non
     for number, frame in video.frames(set(wanted)):
         decoded.add(number)
         if writer is None:
-            writer = FrameWriter(out, frame.width, frame.height)
-            video_camera = options.camera.applied_to(_camera(matrix, frame.width, frame.height))
+            writer = PairWriter(out, frame.width, frame.height)
+            recorded = _camera(matrix, frame.width, frame.height)
+            video_camera = CameraFile.of(recorded).merged(options.camera).intrinsics(frame.width, frame.height, root)
         metres, share = _depth(root, number, options.min_confidence)
         kept_share.append(share)
         name = f"{times[number]:.6f}" if number in times else f"{number:06d}"
@@ -157,7 +160,7 @@ class _Video:
                         yield number, frame
                     if number >= last:
                         return
-        except (av.error.FFmpegError, IndexError) as e:
-            self.why = f" ({self.path.name} cannot be decoded past frame {number + 1}: {e})"
+        except (av.error.FFmpegError, IndexError):
+            self.why = f" ({self.path.name} is damaged: it cannot be decoded past frame {number + 1})"
             return
         self.why = f" ({self.path.name} ends after {number + 1} frames: cut short?)"

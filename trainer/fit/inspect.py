@@ -96,7 +96,7 @@ def readable(recording: Recording) -> Recording:
             if mode in DEPTH_MODES:
                 read_pair(pair)
         except DAMAGE as e:
-            damaged.append((pair.name, str(e) if isinstance(e, UserError) else f"cannot be decoded: {e}"))
+            damaged.append((pair.name, str(e) if isinstance(e, UserError) else "damaged: not a readable image"))
             continue
         if mode not in DEPTH_MODES:
             raise UserError(

@@ -3,6 +3,7 @@ continues a fit stopped at any moment."""
 
 from __future__ import annotations
 
+import uuid
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,9 @@ from trainer.fit.budget import Plan
 class FitState(BaseModel):
     """Everything a fit decides before training, saved as ``fit.json``: what ``--resume`` continues."""
 
+    #: Drawn once per fit, and written into the card it publishes: the one thing that tells this fit's
+    #: version from another fit's of the same name in the same run folder.
+    fit_id: str = Field(default_factory=lambda: uuid.uuid4().hex)
     report: list[str]
     data: str
     format: str
@@ -35,19 +39,19 @@ class FitState(BaseModel):
 
 
 def published_by(state: FitState, registry: Path, name: str) -> Path | None:
-    """The version of ``name`` this fit's run published, if any: its card names the run's training folder.
+    """The version of ``name`` this fit published, if any: the one whose card carries this fit's id.
 
     Publishing and recording it in fit.json are two steps; a Ctrl-C between them must not make ``--resume``
-    publish the same fit again as the next version.
+    publish the same fit again as the next version. An earlier fit of the same name in the same folder
+    published under another id, so its version is never taken for this one's.
     """
-    ours = Path(state.config.train.out_dir).resolve()
     for version in reversed(list_versions(registry, name)):
         folder = Path(registry) / name / version
         try:
-            out_dir = load_card(folder).training.config.get("train", {}).get("out_dir")
+            fit = load_card(folder).training.fit
         except CardError:
             continue
-        if out_dir and Path(out_dir).resolve() == ours:
+        if fit is not None and fit.fit_id == state.fit_id:
             return folder
     return None
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -96,19 +97,30 @@ def start_config(start: Path) -> dict[str, Any]:
 
 
 class Progress:
-    """One bar for the whole command: its phase, the seconds of budget used, and the ETA."""
+    """One bar for the whole command: its phase, the seconds of budget used, and the ETA.
 
-    def __init__(self, budget_s: float, started: float):
+    On a terminal the bar redraws in place. Elsewhere (a log file, CI) it is printed once, where the
+    command ends: a redraw there would be one more line of the log each time.
+    """
+
+    FORMAT = "{desc}{percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]"  # desc ends ": "
+
+    def __init__(self, budget_s: float, started: float, live: bool | None = None):
         self.started = started
-        fmt = "{desc}{percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]"  # desc ends ": "
-        self.bar = tqdm(total=round(budget_s), desc="reading", bar_format=fmt, dynamic_ncols=True)
+        self.live = sys.stderr.isatty() if live is None else live
+        self.bar = tqdm(
+            total=round(budget_s), desc="reading", bar_format=self.FORMAT, dynamic_ncols=True, disable=not self.live
+        )
+        self.description, self.total, self.n = "reading", round(budget_s), 0
 
     def phase(self, name: str) -> None:
+        self.description = name
         self.bar.set_description(name)
         self.tick()
 
     def tick(self, *_: int) -> None:
-        self.bar.n = min(self.bar.total, round(time.monotonic() - self.started))
+        self.n = min(self.total, round(time.monotonic() - self.started))
+        self.bar.n = self.n
         self.bar.refresh()
 
     def say(self, line: str) -> None:
@@ -117,13 +129,20 @@ class Progress:
     def finish(self) -> None:
         """The command is done: the bar ends full, at the seconds it took (within the budget, or past it)."""
         self.tick()
-        self.bar.total = max(1, self.bar.n)
+        self.total = self.bar.total = max(1, self.n)
+        self.description = "done"
         self.bar.set_description("done")
 
     def close(self) -> None:
         """Stop the bar where the command ended (full when it finished), before anything else is printed."""
         self.tick()
         self.bar.close()
+        if not self.live:
+            elapsed = time.monotonic() - self.started
+            line = tqdm.format_meter(
+                self.n, self.total, elapsed, ncols=80, prefix=f"{self.description}: ", bar_format=self.FORMAT
+            )
+            print(line, file=sys.stderr)
 
 
 def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
@@ -312,6 +331,7 @@ def _train_score_publish(options: FitOptions, state: FitState, progress: Progres
     version = next_version(options.registry, options.name)
     start = load_card(state.start) if state.start else None
     record = FitRecord(
+        fit_id=state.fit_id,
         data=state.data,
         start_from=state.start_from,
         start_model=f"{start.name} {start.version}" if start else None,
