@@ -103,8 +103,10 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
     args = fit_args(data, tmp_path, start)
     at = args.index("--registry")
     began = time.monotonic()
-    stdout = run_cli(*args[:at], *args[at + 2 :], "--precision", "int8").stdout
+    result = run_cli(*args[:at], *args[at + 2 :], "--precision", "int8")
+    stdout = result.stdout
     assert time.monotonic() - began < 60 + BUDGET_MARGIN_S  # the budget holds, the int8 graph's calibration in it
+    assert result.stderr.count("%|") == 1, result.stderr  # not a terminal: the bar is printed once, at the end
     assert "pairs: 24 found, 0 skipped" in stdout and "split: train 16, selection 2" in stdout
     assert "| fitted model |" in stdout and "| tiny 0.1.0, zero-shot (the start) |" in stdout
     own = tmp_path / "data" / "rgb2cloud" / "models"
@@ -116,6 +118,7 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
     assert not (REPO / "weights" / "my-room").exists()
     card = load_card(folder)
     assert card.training.fit.start_from == str(start) and card.training.fit.budget_min == 1.0
+    assert card.training.fit.fit_id == json.loads((tmp_path / "run" / "fit.json").read_text())["fit_id"]
     split = card.training.fit.split
     assert {part: split[part]["frames"] for part in split} == {"train": 16, "selection": 2, "gap": 1, "holdout": 5}
     assert split["holdout"]["last"] == f"{1000 + 23 / 30:.6f}"  # the end of the recording, in time order

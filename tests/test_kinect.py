@@ -331,3 +331,96 @@ def test_fit_reads_a_kinect_recording_end_to_end(tmp_path, registry):
     assert "Azure Kinect recording: colour MJPG_720P (24 frames), depth NFOV_2X2BINNED" in result.stdout
     assert "pairs: 24 found, 0 skipped" in result.stdout and "| fitted model |" in result.stdout
     assert (tmp_path / "registry" / "kinect-room" / "0.1.0" / "card.json").is_file()
+
+
+# --- each mode's camera against the Sensor SDK's windows and formulas, worked by hand ------------------------
+
+
+def hand_calibration(colour_sensor: tuple[int, int], colour_params: list[float]) -> dict:
+    """A calibration.json of round numbers: depth (cx, cy, fx, fy) = (0.5, 0.49, 0.49, 0.5) of its 1024x1024
+    sensor, k1-k6 = 0.1-0.6, p2 0.007, p1 0.003; the depth camera turned 90 degrees about z and 1 cm along x
+    from the device frame; colour 3.2 cm along -x with no turn."""
+    depth = [0.5, 0.49, 0.49, 0.5, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.0, 0.0, 0.007, 0.003]
+    model = "CALIBRATION_LensDistortionModelBrownConrady"
+
+    def camera(location: str, size: tuple[int, int], params: list[float], rotation: list, translation: list) -> dict:
+        return {
+            "Location": location,
+            "Purpose": "",
+            "SensorWidth": size[0],
+            "SensorHeight": size[1],
+            "MetricRadius": 1.7,
+            "Intrinsics": {"ModelType": model, "ModelParameterCount": 14, "ModelParameters": params},
+            "Rt": {"Rotation": rotation, "Translation": translation},
+        }
+
+    quarter = [0, -1, 0, 1, 0, 0, 0, 0, 1]
+    return {
+        "Cameras": [
+            camera("CALIBRATION_CameraLocationD0", (1024, 1024), depth, quarter, [0.01, 0, 0]),
+            camera(
+                "CALIBRATION_CameraLocationPV0",
+                colour_sensor,
+                colour_params,
+                [1, 0, 0, 0, 1, 0, 0, 0, 1],
+                [-0.032, 0, 0],
+            ),
+        ]
+    }
+
+
+def fields(k: Intrinsics) -> tuple[float, ...]:
+    return (k.fx, k.fy, k.cx, k.cy, k.width, k.height)
+
+
+#: Per depth mode, the SDK's window (binned sensor, crop offset, size), and the camera it gives, by hand:
+#: f = f_norm * binned, c = c_norm * binned - offset - 0.5 (the calibration's 0 is a pixel's corner).
+DEPTH_BY_HAND = {
+    "NFOV_UNBINNED": (501.76, 512.0, 512 - 192 - 0.5, 501.76 - 180 - 0.5, 640, 576),
+    "NFOV_2X2BINNED": (250.88, 256.0, 256 - 96 - 0.5, 250.88 - 90 - 0.5, 320, 288),
+    "WFOV_UNBINNED": (501.76, 512.0, 511.5, 501.26, 1024, 1024),
+    "WFOV_2X2BINNED": (250.88, 256.0, 255.5, 250.38, 512, 512),
+}
+
+
+@pytest.mark.parametrize("mode", DEPTH_BY_HAND)
+def test_each_depth_mode_s_camera_is_the_sdk_s_worked_by_hand(mode):
+    calibration = hand_calibration((4096, 3072), [0.5, 0.5, 0.48, 0.64] + [0.0] * 10)
+    lens = mode_lens(Path("hand.mkv"), calibration, "depth", DEPTH_MODES[mode])
+    assert fields(lens.camera) == pytest.approx(DEPTH_BY_HAND[mode])
+    # OpenCV's order is k1, k2, p1, p2, k3, k4, k5, k6; the calibration's ends p2, p1.
+    assert lens.coefficients == pytest.approx((0.1, 0.2, 0.003, 0.007, 0.3, 0.4, 0.5, 0.6))
+
+
+#: A 4:3 colour calibration (cx, cy, fx, fy) = (0.5, 0.5, 0.48, 0.64): per resolution, by hand.
+COLOUR_BY_HAND = {
+    "720P": (614.4, 614.4, 639.5, 480 - 120 - 0.5, 1280, 720),
+    "1536P": (983.04, 983.04, 1023.5, 767.5, 2048, 1536),
+    "2160P": (1843.2, 1843.2, 1919.5, 1440 - 360 - 0.5, 3840, 2160),
+}
+
+
+@pytest.mark.parametrize("resolution", COLOUR_BY_HAND)
+def test_each_colour_resolution_s_camera_is_the_sdk_s_worked_by_hand(resolution):
+    calibration = hand_calibration((4096, 3072), [0.5, 0.5, 0.48, 0.64] + [0.0] * 10)
+    lens = mode_lens(Path("hand.mkv"), calibration, "colour", COLOUR_RESOLUTIONS[resolution])
+    assert fields(lens.camera) == pytest.approx(COLOUR_BY_HAND[resolution])
+
+
+def test_a_16_9_colour_calibration_is_moved_onto_4_3_first_as_the_sdk_does():
+    """A 3840x2160 calibration (cx, cy, fx, fy) = (0.5, 0.45, 0.45, 0.8): the SDK puts it on the 4:3 sensor
+    (2880 rows) first: cy = (0.45 x 2160 + (2880 - 2160) / 2) / 2880 = 0.4625, fy = 0.8 x 2160 / 2880 = 0.6.
+    At 720P (1280x960 binned, rows 120 on): fy = 576, cy = 444 - 120 - 0.5 = 323.5; fx = 576, cx = 639.5."""
+    calibration = hand_calibration((3840, 2160), [0.5, 0.45, 0.45, 0.8] + [0.0] * 10)
+    lens = mode_lens(Path("hand.mkv"), calibration, "colour", COLOUR_RESOLUTIONS["720P"])
+    assert fields(lens.camera) == pytest.approx((576.0, 576.0, 639.5, 323.5, 1280, 720))
+
+
+def test_depth_to_colour_composes_the_two_poses_in_the_sdk_s_direction():
+    """Each camera's Rt takes device-frame points into that camera. The device point (0, 0, 1) is (0.01, 0, 1)
+    in the depth camera (a quarter turn about z leaves the axis alone, then 1 cm along x), and (-0.032, 0, 1) in
+    the colour camera: depth to colour must take the one to the other. And the quarter turn takes the device's
+    -y axis to the depth camera's x: so the depth camera's x is the colour camera's -y."""
+    rotation, translation = depth_to_colour(Path("hand.mkv"), hand_calibration((4096, 3072), [0.5] * 4 + [0.0] * 10))
+    assert rotation @ np.array([0.01, 0.0, 1.0]) + translation == pytest.approx([-0.032, 0.0, 1.0])
+    assert rotation @ np.array([1.0, 0.0, 0.0]) == pytest.approx([0.0, -1.0, 0.0])

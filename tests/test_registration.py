@@ -250,3 +250,64 @@ def test_evaluate_refuses_a_malformed_colour_camera(tmp_path):
     )
     assert result.returncode == 2
     assert "--colour-camera" in result.stderr and "fy" in result.stderr
+
+
+# --- each turn and shift worked by hand: a sign flipped anywhere moves a point to the other side --------------
+
+
+def _one_point(u: int, v: int, z: float) -> np.ndarray:
+    depth = np.zeros((60, 80), dtype=np.float32)
+    depth[v, u] = z
+    return depth
+
+
+def _landed(moved: np.ndarray) -> tuple[int, int]:
+    (row,), (col,) = np.nonzero(moved)
+    return int(col), int(row)
+
+
+@pytest.mark.parametrize(("roll", "expected"), [(90.0, (40, 49)), (-90.0, (39, 10))])
+def test_registration_turns_a_point_by_the_roll_s_sign(roll, expected):
+    """Pixel (59, 29) is 19.5 px right of and 0.5 px above the centre (39.5, 29.5). A quarter roll (+: x towards
+    y, as ``colour_coordinates`` turns it) puts it 19.5 px below and 0.5 px right; the opposite roll 19.5 px
+    above and 0.5 px left."""
+    moved = depth_to_colour(_one_point(59, 29, 2.0), DEPTH_CAMERA, _same_camera(roll_deg=roll))
+    assert _landed(moved) == expected
+
+
+@pytest.mark.parametrize(("b", "columns"), [(0.04, (26, 45)), (-0.04, (34, 53))])
+def test_registration_shifts_the_box_by_the_baseline_s_sign(b, columns):
+    """The colour camera b along the depth camera's x sees a point at 1 m shifted by -100 b / 1 px: 4 px left
+    for 4 cm, 4 px right for -4 cm."""
+    registered = depth_to_colour(_box_scene(), DEPTH_CAMERA, _same_camera(baseline_m=b))
+    box = np.flatnonzero(registered[30] == 1.0)
+    assert (box[0], box[-1]) == columns
+
+
+#: tan(angle) = 0.1: a turn that moves the optical axis 10 px at fx 100.
+TURN = float(np.degrees(np.arctan(0.1)))
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_a_yaw_moves_a_point_along_x_by_its_sign(sign):
+    """p_colour = R p_depth with R a turn about y by +-TURN, written out here: [[c, 0, s], [0, 1, 0], [-s, 0, c]].
+    A point on pixel (42, 31) at 2 m is (0.05, 0.03, 2) m; turned, it is (0.05c + 2s, 0.03, -0.05s + 2c)."""
+    t = np.radians(sign * TURN)
+    c, s = np.cos(t), np.sin(t)
+    rotation = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    moved = reproject_depth(_one_point(42, 31, 2.0), DEPTH_CAMERA, DEPTH_CAMERA, rotation, np.zeros(3))
+    x, y, z = 0.05 * c + 2 * s, 0.03, -0.05 * s + 2 * c
+    assert _landed(moved) == (round(39.5 + 100 * x / z), round(29.5 + 100 * y / z))
+    assert _landed(moved) == ((52, 31) if sign > 0 else (32, 31))  # and the same worked to the pixel
+    assert moved[moved > 0][0] == pytest.approx(z, rel=1e-6)
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_a_pitch_moves_a_point_along_y_by_its_sign(sign):
+    """R a turn about x by +-TURN: [[1, 0, 0], [0, c, -s], [0, s, c]]; (0.05, 0.03, 2) m goes to
+    (0.05, 0.03c - 2s, 0.03s + 2c)."""
+    t = np.radians(sign * TURN)
+    c, s = np.cos(t), np.sin(t)
+    rotation = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    moved = reproject_depth(_one_point(42, 31, 2.0), DEPTH_CAMERA, DEPTH_CAMERA, rotation, np.zeros(3))
+    assert _landed(moved) == ((42, 21) if sign > 0 else (42, 41))

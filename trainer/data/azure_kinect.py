@@ -98,8 +98,8 @@ def read_kinect(path: Path, out_dir: Path, options: KinectOptions | None = None)
 
 
 @dataclass(frozen=True)
-class Recording:
-    """What one recording holds: its tracks and modes, both cameras in the recording's modes, the transform."""
+class KinectLayout:
+    """The layout of one Kinect file: its tracks and modes, both cameras in the recording's modes, the transform."""
 
     colour_track: int  # stream indices: each pass opens the file afresh
     depth_track: int
@@ -121,7 +121,7 @@ class Recording:
         return self.colour_lens.camera.resized(*self.writer_size)
 
 
-def _recording(container: Any, path: Path, options: KinectOptions) -> Recording:
+def _recording(container: Any, path: Path, options: KinectOptions) -> KinectLayout:
     colour, depth, others = _tracks(container, path)
     depth_mode = depth.metadata.get("K4A_DEPTH_MODE", "")
     colour_mode, colour_sensor = _colour_mode(path, colour)
@@ -147,7 +147,7 @@ def _recording(container: Any, path: Path, options: KinectOptions) -> Recording:
             f"{path}: K4A_DEPTH_DELAY_NS {container.metadata['K4A_DEPTH_DELAY_NS']!r} is not a number"
         ) from None
     size = PairWriter.written_size(colour.width, colour.height)
-    return Recording(
+    return KinectLayout(
         colour.index,
         depth.index,
         (colour.width, colour.height),
@@ -202,7 +202,7 @@ def _colour_mode(path: Path, colour: Any) -> tuple[str, SensorMode]:
     return tag, sensor
 
 
-def _stamps(container: Any, recording: Recording) -> dict[str, list[float]]:
+def _stamps(container: Any, recording: KinectLayout) -> dict[str, list[float]]:
     """Each track's frame times in seconds, in file order (a first pass that reads packets, decoding none)."""
     stamps: dict[str, list[float]] = {"colour": [], "depth": []}
     kinds = {recording.colour_track: "colour", recording.depth_track: "depth"}
@@ -228,7 +228,7 @@ class Pairs:
     skipped: list[tuple[str, str]]
 
 
-def _pairs(path: Path, recording: Recording, stamps: dict[str, list[float]], options: KinectOptions) -> Pairs:
+def _pairs(path: Path, recording: KinectLayout, stamps: dict[str, list[float]], options: KinectOptions) -> Pairs:
     colour, depth = stamps["colour"], np.asarray(stamps["depth"])
     order = np.argsort(depth, kind="stable")  # file order to time order
     ordered = depth[order]
@@ -258,7 +258,7 @@ def _pairs(path: Path, recording: Recording, stamps: dict[str, list[float]], opt
 
 
 def _write(
-    container: Any, out: Path, recording: Recording, pairs: Pairs
+    container: Any, out: Path, recording: KinectLayout, pairs: Pairs
 ) -> tuple[list[tuple[str, Path, Path]], list[tuple[str, str]]]:
     """Decode the kept frames only (stopping after the last), register each depth, write each pair."""
     import av
@@ -312,7 +312,7 @@ def _write(
     return [written[i] for i in sorted(written)], sorted(damaged.items())
 
 
-def _notes(recording: Recording, pairs: Pairs, damaged: list[tuple[str, str]]) -> list[str]:
+def _notes(recording: KinectLayout, pairs: Pairs, damaged: list[tuple[str, str]]) -> list[str]:
     r = recording
     d, c = r.depth_lens.camera, r.colour_lens.camera
     angle = np.degrees(np.arccos(np.clip((np.trace(r.rotation) - 1) / 2, -1, 1)))
