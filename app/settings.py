@@ -42,8 +42,10 @@ class Settings(BaseSettings):
     """Read from the environment (RGB2CLOUD_REGISTRY=..., RGB2CLOUD_PORT=...) or passed directly.
 
     The only reader of ``RGB2CLOUD_*`` variables: the service, ``fit``, ``export`` and the client all
-    take their registries, host and port from here. A retired or unknown variable in the environment
-    fails validation rather than being ignored.
+    take their registries, host and port from here. The one exception is ``inference_max_pixels``, which
+    the trainer (which never imports the service) reads through ``contract.resample.inference_max_pixels``
+    under the same name and rules, so its tables are of the depth the service serves. A retired or
+    unknown variable in the environment fails validation rather than being ignored.
     """
 
     model_config = SettingsConfigDict(env_prefix="RGB2CLOUD_", extra="forbid")
@@ -103,9 +105,3 @@ class Settings(BaseSettings):
                 "RGB2CLOUD_PRECISION=int8 needs RGB2CLOUD_BACKEND=onnx: the int8 graphs run on ONNX Runtime only"
             )
         return self
-
-
-def inference_max_pixels() -> int:
-    """``RGB2CLOUD_INFERENCE_MAX_PIXELS`` as the service reads it: what ``evaluate``, ``fit``'s scores and int8
-    calibration resample photos by too, so a deployment that changes it gets tables of the depth it serves."""
-    return Settings().inference_max_pixels

@@ -14,16 +14,41 @@ Torch-free: the serving install has no torch.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 
 import numpy as np
 from PIL import Image
 
+from contract.errors import UserError
 from contract.geometry import Intrinsics
 
 #: The most pixels the generator sees unless told otherwise (the service's ``inference_max_pixels``):
 #: a photo that needs more at the model's focal length is shrunk further, bounding the cost of a wide view.
 INFERENCE_MAX_PIXELS = 1280 * 960
+
+#: The service's setting (``app.settings.Settings.inference_max_pixels``) as an environment variable.
+INFERENCE_MAX_PIXELS_VARIABLE = "RGB2CLOUD_INFERENCE_MAX_PIXELS"
+
+
+def inference_max_pixels() -> int:
+    """The service's ``RGB2CLOUD_INFERENCE_MAX_PIXELS``, or its default where unset, read as the service reads it.
+
+    ``evaluate``, ``fit``'s held-out scores and int8 calibration resample photos by it too, so a deployment
+    that changes it gets tables of the depth it serves. The trainer never imports the service, so it reads
+    the variable here, under the service's rule (a whole number, 1 or more).
+    """
+    text = os.environ.get(INFERENCE_MAX_PIXELS_VARIABLE)
+    if text is None:
+        return INFERENCE_MAX_PIXELS
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise UserError(f"{INFERENCE_MAX_PIXELS_VARIABLE}={text!r}: expected a whole number of pixels, 1 or more")
+    return value
+
 
 #: A generator run: HxWx3 uint8 at the model's camera in, HxW metres at the same size out.
 DepthRun = Callable[[np.ndarray], np.ndarray]

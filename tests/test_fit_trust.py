@@ -12,8 +12,10 @@ import torch
 from conftest import SEVEN_SCENES, evaluate_cli
 from PIL import Image
 
+from app.settings import Settings
 from contract.card import FitRecord, load_card
 from contract.errors import UserError
+from contract.resample import inference_max_pixels
 from harness.recordings import MOSD_CAMERA, write_aligned_bag, write_stray_scanner
 from trainer.data.formats import ReadOptions, open_recording
 from trainer.data.sevenscenes import SevenScenesReader
@@ -104,6 +106,10 @@ def test_scores_and_int8_calibration_resample_by_the_service_s_pixel_limit(monke
     assert depth.shape == (480, 640) and seen == [(120, 160)]
     photos = calibration_frames([reader], 2, camera)
     assert [p.shape[:2] for p in photos] == [(120, 160), (120, 160)]
+    assert Settings().inference_max_pixels == inference_max_pixels() == 160 * 120  # the service reads the same
+    monkeypatch.setenv("RGB2CLOUD_INFERENCE_MAX_PIXELS", "0")
+    with pytest.raises(UserError, match="RGB2CLOUD_INFERENCE_MAX_PIXELS='0': expected a whole number of pixels"):
+        inference_max_pixels()
 
 
 def test_a_checkpoint_is_evaluated_without_its_training_data(trained_checkpoint, tmp_path):

@@ -16,11 +16,10 @@ from typing import Any, Protocol
 import numpy as np
 from tqdm import tqdm
 
-from app.settings import inference_max_pixels
 from contract.card import METRIC_KEYS, ONNX_FILE, PAPER_METRICS, load_card, verify_files
 from contract.errors import UserError
 from contract.geometry import ColourCamera, Intrinsics
-from contract.resample import DepthRun, depth_at_photo
+from contract.resample import DepthRun, depth_at_photo, inference_max_pixels
 from contract.runtime import OnnxGenerator, Precision
 from trainer.checkpoint import load_graph
 from trainer.config import DataSource

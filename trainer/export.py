@@ -23,7 +23,6 @@ import numpy as np
 import torch
 from PIL import Image
 
-from app.settings import inference_max_pixels
 from contract.card import (
     INT8_ONNX_FILE,
     INT8_SAMPLE_FILE,
@@ -40,7 +39,7 @@ from contract.card import (
 from contract.codec import INPUT_ENCODING, DepthEncoding
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from contract.resample import to_model_camera
+from contract.resample import inference_max_pixels, to_model_camera
 from contract.runtime import INT8_AGREEMENT, OnnxGenerator, Precision
 from trainer.checkpoint import load_graph
 from trainer.config import DataSource

@@ -28,10 +28,9 @@ from pathlib import Path
 import numpy as np
 import onnx
 
-from app.settings import inference_max_pixels
 from contract.codec import DepthEncoding
 from contract.geometry import Intrinsics
-from contract.resample import to_model_camera
+from contract.resample import inference_max_pixels, to_model_camera
 from contract.runtime import OnnxGenerator, int8_agreement, to_grid
 from trainer.data.frames import FrameReader
 

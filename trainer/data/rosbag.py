@@ -43,6 +43,7 @@ from trainer.data.frames import (
 )
 from trainer.data.pair_writer import PairWriter
 from trainer.data.rosbag_cameras import Geometry, overridden_lens, recorded_lens, same_camera
+from trainer.data.rosbag_damage import bag_damage, is_decompression_error
 from trainer.data.rosbag_extrinsics import depth_to_colour_extrinsics
 from trainer.data.rosbag_images import (
     COLOUR_ENCODINGS,
@@ -50,6 +51,7 @@ from trainer.data.rosbag_images import (
     DEPTH_ENCODINGS,
     FRAME_DAMAGE,
     IMAGE,
+    Stream,
     colour_image,
     decoded,
     depth_image,
@@ -61,33 +63,6 @@ from trainer.registration import reproject_depth
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 #: Colour and depth stamped further apart than this are not a pair (a 30 fps stream's frames are 33 ms apart).
 DEFAULT_MAX_GAP_S = 0.02
-
-
-@dataclass(frozen=True)
-class Stream:
-    """One image topic: its type, frame count, first message's encoding and size."""
-
-    topic: str
-    msgtype: str
-    count: int
-    encoding: str
-    width: int
-    height: int
-
-    @property
-    def image(self) -> tuple[str, int, int]:
-        """The topic and its images' width and height."""
-        return self.topic, self.width, self.height
-
-    @property
-    def is_depth(self) -> bool:
-        return self.encoding in DEPTH_ENCODINGS or "compresseddepth" in self.encoding.lower()
-
-    @property
-    def is_colour(self) -> bool:
-        if self.msgtype == COMPRESSED:
-            return not self.is_depth and "depth" not in self.topic.lower()
-        return self.encoding in COLOUR_ENCODINGS and not any(w in self.topic.lower() for w in ("infra", "/ir"))
 
 
 def is_bag(path: Path) -> bool:
@@ -142,39 +117,9 @@ def read_bag(path: Path, out_dir: Path, options: BagOptions | None = None) -> Pa
     except (AnyReaderError, Ros1Error, Ros2Error) as e:
         raise UserError(f"{path}: {bag_damage(str(e))}") from None
     except (OSError, RuntimeError) as e:
-        if not _is_decompression_error(e):
+        if not is_decompression_error(e):
             raise
         raise UserError(f"{path}: damaged: a compressed chunk cannot be decompressed") from None
-
-
-#: What the bag libraries say of damaged bytes, and the same in words (first match wins).
-BAG_DAMAGE = (
-    (r"Truncated record|Got only \d+ of requested", "damaged: a record claims more bytes than the file holds"),
-    (r"database disk image is malformed|file is not a database", "damaged: its sqlite3 database is malformed"),
-    (r"File end magic is invalid", "damaged: cut short (the MCAP file has no footer)"),
-    (r"index looks damaged|Header could not be read", "damaged: its index cannot be read (cut short?)"),
-    (r"Could not deserialize '([^']+)'", "damaged: a {0} message in it cannot be decoded"),
-    (r"Could not parse", "damaged: a message definition in it cannot be parsed"),
-)
-
-
-def bag_damage(message: str) -> str:
-    """What the bag libraries raised, in words: ``damaged: ...`` or ``not a readable ROS bag (...)``."""
-    import re
-
-    for pattern, words in BAG_DAMAGE:
-        if found := re.search(pattern, message):
-            return words.format(*found.groups())
-    detail = message.split("\n")[0].rstrip(".")
-    return f"not a readable ROS bag ({detail})"
-
-
-def _is_decompression_error(error: BaseException) -> bool:
-    """Whether an error is a bag chunk's failed decompression: lz4's RuntimeError, or bz2's OSError (no errno,
-    unlike a failed read or write of a file)."""
-    if isinstance(error, RuntimeError):
-        return str(error).startswith("LZ4F_")
-    return isinstance(error, OSError) and error.errno is None
 
 
 def _read(reader: Any, path: Path, out: Path, options: BagOptions) -> PairsReader:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import struct
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,33 @@ IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 COLOUR_ENCODINGS = {"rgb8": (3, False), "bgr8": (3, True), "rgba8": (4, False), "bgra8": (4, True), "mono8": (1, False)}
 DEPTH_ENCODINGS = {"16UC1": np.uint16, "mono16": np.uint16, "32FC1": np.float32}
+
+
+@dataclass(frozen=True)
+class Stream:
+    """One image topic: its type, frame count, first message's encoding and size."""
+
+    topic: str
+    msgtype: str
+    count: int
+    encoding: str
+    width: int
+    height: int
+
+    @property
+    def image(self) -> tuple[str, int, int]:
+        """The topic and its images' width and height."""
+        return self.topic, self.width, self.height
+
+    @property
+    def is_depth(self) -> bool:
+        return self.encoding in DEPTH_ENCODINGS or "compresseddepth" in self.encoding.lower()
+
+    @property
+    def is_colour(self) -> bool:
+        if self.msgtype == COMPRESSED:
+            return not self.is_depth and "depth" not in self.topic.lower()
+        return self.encoding in COLOUR_ENCODINGS and not any(w in self.topic.lower() for w in ("infra", "/ir"))
 
 
 def message_size(message: Any, msgtype: str) -> tuple[int, int]:
