@@ -29,15 +29,7 @@ import numpy as np
 from contract.errors import UserError
 from contract.geometry import Intrinsics
 from trainer.data.folders import CameraFile
-from trainer.data.frames import (
-    DEFAULT_MAX_FRAMES,
-    PairsReader,
-    damaged_note,
-    kept_note,
-    nearest_stamp,
-    spread,
-    written_pairs,
-)
+from trainer.data.frames import DEFAULT_MAX_FRAMES, PairsReader, kept_note, nearest_stamp, spread
 from trainer.data.kinect_calibration import (
     COLOUR_RESOLUTIONS,
     DEPTH_MODES,
@@ -47,7 +39,7 @@ from trainer.data.kinect_calibration import (
     mode_lens,
 )
 from trainer.data.lens import Lens
-from trainer.data.pair_writer import PairWriter
+from trainer.data.pair_writer import PairWriter, damaged_note, written_pairs
 from trainer.registration import reproject_depth
 
 #: Colour and depth further apart than this (after the recorded depth delay) are not a pair.

@@ -136,20 +136,6 @@ def kept_note(total: int, kept: int, every: int, max_frames: int | None, unit: s
     return f"kept {kept} of {total} {unit}: {how}"
 
 
-def damaged_note(damaged: list[tuple[str, str]]) -> str:
-    """The line fit prints for frames skipped as damaged: how many, and the first few with why."""
-    shown = ", ".join(f"{name} ({why})" for name, why in damaged[:3])
-    return f"damaged frames skipped: {len(damaged)} ({shown}{', ...' if len(damaged) > 3 else ''})"
-
-
-def written_pairs(
-    name: str, files: list[tuple[str, Path, Path]], camera: Intrinsics, skipped: list[tuple[str, str]], notes: list[str]
-) -> PairsReader:
-    """The frames a reader wrote out: (name, colour file, millimetre depth file) in time order, in ``camera``."""
-    pairs = [RecordedPair(n, rgb, depth, WRITTEN_DEPTH_SCALE, camera) for n, rgb, depth in files]
-    return PairsReader(name, "", pairs, skipped, notes)
-
-
 def image_size(path: Path) -> tuple[int, int]:
     """(width, height) from an image file's header, without decoding it."""
     with Image.open(path) as im:

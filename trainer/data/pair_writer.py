@@ -19,7 +19,7 @@ import numpy as np
 from PIL import Image
 
 from contract.geometry import Intrinsics
-from trainer.data.frames import PNG_MAGIC, TRAINED_PIXELS, WRITTEN_DEPTH_SCALE
+from trainer.data.frames import PNG_MAGIC, TRAINED_PIXELS, WRITTEN_DEPTH_SCALE, PairsReader, RecordedPair
 from trainer.registration import upsample_depth
 
 #: A photo as recorded: an encoded JPEG or PNG (bytes), decoded pixels (HxWx3 uint8 RGB) or a PIL image.
@@ -82,3 +82,17 @@ class PairWriter:
         """One pair: the photo at the written size, and its depth (registered to it, or coarser and upsampled)."""
         colour, pixels = self.photo(name, photo)
         return name, colour, self.depth(name, metres, pixels)
+
+
+def damaged_note(damaged: list[tuple[str, str]]) -> str:
+    """The line fit prints for frames skipped as damaged: how many, and the first few with why."""
+    shown = ", ".join(f"{name} ({why})" for name, why in damaged[:3])
+    return f"damaged frames skipped: {len(damaged)} ({shown}{', ...' if len(damaged) > 3 else ''})"
+
+
+def written_pairs(
+    name: str, files: list[tuple[str, Path, Path]], camera: Intrinsics, skipped: list[tuple[str, str]], notes: list[str]
+) -> PairsReader:
+    """The frames a reader wrote out: (name, colour file, millimetre depth file) in time order, in ``camera``."""
+    pairs = [RecordedPair(n, rgb, depth, WRITTEN_DEPTH_SCALE, camera) for n, rgb, depth in files]
+    return PairsReader(name, "", pairs, skipped, notes)

@@ -32,16 +32,8 @@ import numpy as np
 
 from contract.errors import UserError
 from trainer.data.folders import CameraFile
-from trainer.data.frames import (
-    DEFAULT_MAX_FRAMES,
-    PairsReader,
-    damaged_note,
-    kept_note,
-    nearest_stamp,
-    spread,
-    written_pairs,
-)
-from trainer.data.pair_writer import PairWriter
+from trainer.data.frames import DEFAULT_MAX_FRAMES, PairsReader, kept_note, nearest_stamp, spread
+from trainer.data.pair_writer import PairWriter, damaged_note, written_pairs
 from trainer.data.rosbag_cameras import Geometry, overridden_lens, recorded_lens, same_camera
 from trainer.data.rosbag_damage import bag_damage, is_decompression_error
 from trainer.data.rosbag_extrinsics import depth_to_colour_extrinsics

@@ -28,8 +28,8 @@ from PIL import Image
 from contract.errors import UserError
 from contract.geometry import Intrinsics
 from trainer.data.folders import CameraFile
-from trainer.data.frames import PairsReader, written_pairs
-from trainer.data.pair_writer import PairWriter
+from trainer.data.frames import PairsReader
+from trainer.data.pair_writer import PairWriter, written_pairs
 from trainer.data.phone_options import PhoneOptions
 
 if TYPE_CHECKING:
