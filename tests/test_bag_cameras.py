@@ -67,7 +67,9 @@ def edges(recording, index: int = 0) -> tuple[np.ndarray, np.ndarray]:
     pair = recording.pairs[index]
     photo = np.asarray(Image.open(pair.rgb).convert("L"), dtype=np.float32)
     depth = np.asarray(Image.open(pair.depth), dtype=np.float32)
-    rows = range(10, photo.shape[0] - 10, 10)  # away from the corners, where a barrel lens leaves no pixels
+    # Every 10th row that shows the wall in both (a barrel lens, or a wider camera, leaves some without depth).
+    rows = [r for r in range(10, photo.shape[0] - 10, 10) if (photo[r] > 125).any() and (depth[r] > 1500).any()]
+    assert len(rows) >= 15, rows
     photo_edge = np.array([np.argmax(photo[r] > 125) for r in rows])
     depth_edge = np.array([np.argmax(depth[r] > 1500) for r in rows])
     return photo_edge, depth_edge
@@ -150,13 +152,17 @@ def test_the_issue_s_repro_an_override_on_a_larger_camera_info_is_used_as_given(
     assert (camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height) == (500, 500, 320, 180, 640, 360)
 
 
-def box_bag(path: Path, info: Intrinsics, distortion: tuple[float, ...], uncalibrated: bool = False) -> Path:
-    """An 80x60 realsense-ros style bag, depth aligned to colour: a box at 1 m over columns 30-49, rows 20-39,
-    drawn at the same pixels of the photo and of the depth; its CameraInfo ``info`` is for 160x120."""
+def box_bag(
+    path: Path, info: Intrinsics, distortion: tuple[float, ...], uncalibrated: bool = False, box=(20, 40, 30, 50)
+) -> Path:
+    """An 80x60 realsense-ros style bag, depth aligned to colour: a box at 1 m over rows ``box[0]:box[1]``,
+    columns ``box[2]:box[3]`` (by default 30-49, rows 20-39), drawn at the same pixels of the photo and of the
+    depth, on a wall at 2 m; its CameraInfo ``info`` is for 160x120."""
+    top, bottom, left, right = box
     rgb = np.full((60, 80, 3), 210, np.uint8)
-    rgb[20:40, 30:50] = 40
+    rgb[top:bottom, left:right] = 40
     mm = np.full((60, 80), 2000, np.uint16)
-    mm[20:40, 30:50] = 1000
+    mm[top:bottom, left:right] = 1000
     model = ("plumb_bob", distortion)
     with BagWriter(path, "ros1") as bag:
         for i in range(2):
@@ -186,18 +192,22 @@ def test_an_override_on_aligned_depth_leaves_the_depth_where_it_was_recorded(tmp
 
 
 def test_aligned_depth_through_a_distorted_lens_is_undone_with_the_photo_and_stays_on_its_edges(tmp_path):
-    """Both images of an aligned bag go through one lens: undone, the box's depth edges are the photo's, and the
-    box's centre column and row (where radial distortion moves nothing across) stay put."""
-    bag = box_bag(tmp_path / "rec.bag", BOX_INFO, (-0.3, 0.08, 0.0, 0.0, 0.0))
+    """Both images of an aligned bag go through one lens. A box in the corner, where a k1 of -0.3 moves pixels
+    by several, comes out of the undistortion moved (so the lens was undone), and its depth edges are the
+    photo's in every row (so depth went through the same lens, not another or none)."""
+    bag = box_bag(tmp_path / "rec.bag", BOX_INFO, (-0.5, 0.1, 0.0, 0.0, 0.0), box=(2, 16, 0, 11))
     recording = open_recording(bag, None, ReadOptions(camera=CameraFile(fx=75.0)), tmp_path / "scratch")
     photo = np.asarray(Image.open(recording.pairs[0].rgb).convert("L"), dtype=np.float32)
     depth = np.asarray(Image.open(recording.pairs[0].depth), dtype=np.float32)
     box_photo = photo < 125
     box_depth = (depth > 0) & (depth < 1500)
-    assert box_depth.sum() > 300
-    for row in range(22, 38, 3):
+    assert box_depth.sum() > 30
+    moved = 0
+    for row in range(6, 14, 2):
         dark, near = np.flatnonzero(box_photo[row]), np.flatnonzero(box_depth[row])
-        assert abs(dark[0] - near[0]) <= 1 and abs(dark[-1] - near[-1]) <= 1, (row, dark, near)
+        assert abs(dark[-1] - near[-1]) <= 1, (row, dark, near)
+        moved = max(moved, abs(int(near[-1]) - 10))
+    assert moved >= 2  # the box's right edge as recorded is column 10: undistorted, it is elsewhere
 
 
 def test_an_uncalibrated_aligned_bag_is_read_with_all_four_overrides_and_refused_with_fewer(tmp_path):
@@ -225,3 +235,44 @@ def test_a_rectified_topic_is_read_at_its_projection_matrix_and_not_undistorted_
     photo, depth = edges(recording)
     assert np.all(np.abs(photo - hand_edge(rectified)) <= 1), photo
     assert np.all(np.abs(depth - photo) <= 1), (photo, depth)
+
+
+def test_depth_aligned_to_the_raw_image_beside_a_rectified_topic_goes_through_the_raw_lens(tmp_path):
+    """aligned_depth_to_color is in the raw colour image's pixels, distortion and all. With image_rect_color
+    chosen, the depth is undone with the raw lens (K, D) and drawn in the rectified camera (P): its edge then
+    meets the rectified photo's where P puts it."""
+    rectified = Intrinsics(COLOUR.fx * 0.9, COLOUR.fy * 0.9, COLOUR.cx - 10, COLOUR.cy, 320, 240)
+    info = COLOUR.resized(640, 480)
+    raw_depth = np.where(normalised_x(COLOUR, BARREL) < EDGE_X, 1000, 2000).astype(np.uint16)
+    with BagWriter(tmp_path / "rec", "ros2") as bag:
+        for i in range(2):
+            t = 100.0 + i / 30
+            bag.image("/camera/color/image_raw", t, board_photo(COLOUR, BARREL), "rgb8")
+            bag.image("/camera/color/image_rect_color", t, board_photo(rectified), "rgb8")
+            bag.camera_info(
+                "/camera/color/camera_info",
+                t,
+                info,
+                distortion=("plumb_bob", BARREL),
+                rectified=rectified.resized(640, 480),
+            )
+            bag.image("/camera/aligned_depth_to_color/image_raw", t, raw_depth, "16UC1")
+            bag.camera_info("/camera/aligned_depth_to_color/camera_info", t, info, distortion=("plumb_bob", BARREL))
+    recording = open_recording(tmp_path / "rec", None, ReadOptions(), tmp_path / "scratch")
+    assert recording.pairs[0].camera == rectified
+    assert any("aligned to the raw colour image" in note for note in recording.notes)
+    photo, depth = edges(recording)
+    assert np.all(np.abs(photo - hand_edge(rectified)) <= 1), photo
+    assert np.all(np.abs(depth - photo) <= 1), (photo, depth)
+
+
+def test_aligned_depth_of_another_size_than_the_photo_is_refused(tmp_path):
+    with BagWriter(tmp_path / "rec.bag", "ros1") as bag:
+        for i in range(2):
+            t = 1.0 + i / 30
+            bag.image("/camera/color/image_raw", t, np.zeros((60, 80, 3), np.uint8), "rgb8")
+            bag.camera_info("/camera/color/camera_info", t, BOX_INFO)
+            bag.image("/camera/aligned_depth_to_color/image_raw", t, np.full((30, 40), 1000, np.uint16), "16UC1")
+            bag.camera_info("/camera/aligned_depth_to_color/camera_info", t, BOX_INFO)
+    with pytest.raises(UserError, match=r"is said to be aligned to colour, but its images are 40x30"):
+        open_recording(tmp_path / "rec.bag", None, ReadOptions(), tmp_path / "scratch")

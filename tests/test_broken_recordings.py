@@ -178,6 +178,45 @@ def test_a_compressed_ros1_bag_whose_chunk_fails_to_decompress(tmp_path, monkeyp
     assert message.startswith(f"{bag}: damaged: ") and "Error" not in message and "0x" not in message, message
 
 
+def test_an_mcap_whose_zstd_chunk_is_damaged(tmp_path, monkeypatch):
+    """MCAP's chunks compressed with zstd (rosbags' storage compression): damaged, they are said in words."""
+    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+
+    import harness.recordings
+
+    class Compressed(harness.recordings.Ros2Writer):
+        def __init__(self, path: Path, **options):
+            super().__init__(path, **options)
+            self.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+
+    monkeypatch.setattr(harness.recordings, "Ros2Writer", Compressed)
+    bag = write_aligned_bag(tmp_path / "rec", "mcap", mosd_frames(3))
+    file = next(bag.glob("*.mcap"))
+    data = bytearray(file.read_bytes())
+    _, chunk, length = next(r for r in mcap_records(data, 8, len(data)) if r[0] == 0x06)
+    middle = chunk + 9 + length // 2
+    data[middle : middle + 64] = bytes(b ^ 0xFF for b in data[middle : middle + 64])
+    file.write_bytes(bytes(data))
+    message = refused(bag, tmp_path)
+    assert message.startswith(f"{bag}: damaged: ") and "Error" not in message, message
+
+
+def test_a_full_disk_while_writing_frames_is_not_called_damage(tmp_path, monkeypatch):
+    """A failed write is the disk's, not the bag's: it keeps its own error and traceback."""
+    import errno
+
+    import trainer.data.pair_writer
+
+    def full(*_, **__):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(trainer.data.pair_writer.PairWriter, "photo", full)
+    bag = write_aligned_bag(tmp_path / "rec.bag", "ros1", mosd_frames(2))
+    with pytest.raises(OSError, match="No space left on device") as error:
+        read(bag, tmp_path)
+    assert not isinstance(error.value, UserError)
+
+
 def test_a_bug_in_the_bag_reader_keeps_its_traceback(tmp_path, monkeypatch):
     """Only what the bag libraries raise for damaged bytes becomes one line: a bug is not called damage."""
     import trainer.data.rosbag

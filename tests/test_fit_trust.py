@@ -20,7 +20,7 @@ from harness.recordings import MOSD_CAMERA, write_aligned_bag, write_stray_scann
 from trainer.data.formats import ReadOptions, open_recording
 from trainer.data.sevenscenes import SevenScenesReader
 from trainer.evaluate import Predictor
-from trainer.fit.state import FitState, published_by
+from trainer.fit.state import FitState, new_fit_id, published_by
 from trainer.quantize import calibration_frames
 
 
@@ -52,7 +52,14 @@ def test_resume_matches_a_published_version_by_the_fit_s_id_not_its_folder(regis
     assert published_by(later, tmp_path / "registry", "my-room") is None
     earlier = FitState.model_construct(fit_id="the-earlier-fit", config=config)
     assert published_by(earlier, tmp_path / "registry", "my-room") == target
-    assert FitState.model_fields["fit_id"].default_factory() != FitState.model_fields["fit_id"].default_factory()
+    assert new_fit_id() != new_fit_id()
+    # A fit.json from before fits had ids matches only a card without one, from its own training folder.
+    legacy = FitState.model_construct(fit_id=None, config=config)
+    assert published_by(legacy, tmp_path / "registry", "my-room") is None
+    card["training"]["fit"]["fit_id"] = None
+    (target / "card.json").write_text(json.dumps(card))
+    assert published_by(legacy, tmp_path / "registry", "my-room") == target
+    assert published_by(later, tmp_path / "registry", "my-room") is None
 
 
 @pytest.mark.parametrize(

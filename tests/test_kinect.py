@@ -392,19 +392,37 @@ def test_each_depth_mode_s_camera_is_the_sdk_s_worked_by_hand(mode):
     assert lens.coefficients == pytest.approx((0.1, 0.2, 0.003, 0.007, 0.3, 0.4, 0.5, 0.6))
 
 
-#: A 4:3 colour calibration (cx, cy, fx, fy) = (0.5, 0.5, 0.48, 0.64): per resolution, by hand.
+#: A 4:3 colour calibration (cx, cy, fx, fy) = (0.5, 0.5, 0.48, 0.62): per resolution, by hand, from the SDK's
+#: windows (binned sensor, then the rows cut from it): f = f_norm * binned, c = c_norm * binned - offset - 0.5.
 COLOUR_BY_HAND = {
-    "720P": (614.4, 614.4, 639.5, 480 - 120 - 0.5, 1280, 720),
-    "1536P": (983.04, 983.04, 1023.5, 767.5, 2048, 1536),
-    "2160P": (1843.2, 1843.2, 1919.5, 1440 - 360 - 0.5, 3840, 2160),
+    "720P": (614.4, 595.2, 639.5, 480 - 120 - 0.5, 1280, 720),
+    "1080P": (921.6, 892.8, 959.5, 720 - 180 - 0.5, 1920, 1080),
+    "1440P": (1228.8, 1190.4, 1279.5, 960 - 240 - 0.5, 2560, 1440),
+    "1536P": (983.04, 952.32, 1023.5, 767.5, 2048, 1536),
+    "2160P": (1843.2, 1785.6, 1919.5, 1440 - 360 - 0.5, 3840, 2160),
+    "3072P": (1966.08, 1904.64, 2047.5, 1535.5, 4096, 3072),
 }
 
 
 @pytest.mark.parametrize("resolution", COLOUR_BY_HAND)
 def test_each_colour_resolution_s_camera_is_the_sdk_s_worked_by_hand(resolution):
-    calibration = hand_calibration((4096, 3072), [0.5, 0.5, 0.48, 0.64] + [0.0] * 10)
+    calibration = hand_calibration((4096, 3072), [0.5, 0.5, 0.48, 0.62] + [0.0] * 10)
     lens = mode_lens(Path("hand.mkv"), calibration, "colour", COLOUR_RESOLUTIONS[resolution])
     assert fields(lens.camera) == pytest.approx(COLOUR_BY_HAND[resolution])
+
+
+def test_a_lens_s_p1_bends_a_point_as_brown_conrady_says():
+    """Only p1 set (0.01, the calibration's last parameter): a ray at (0.1, 0.2) lands at x + 2 p1 x y =
+    0.1004, y + p1 (r^2 + 2 y^2) = 0.2013 through the lens as OpenCV applies it."""
+    params = [0.5, 0.5, 0.48, 0.64] + [0.0] * 9 + [0.01]
+    lens = mode_lens(Path("hand.mkv"), hand_calibration((4096, 3072), params), "colour", COLOUR_RESOLUTIONS["3072P"])
+    k = lens.camera
+    matrix = np.array([[k.fx, 0, k.cx], [0, k.fy, k.cy], [0, 0, 1]])
+    pixel, _ = cv2.projectPoints(
+        np.array([[0.1, 0.2, 1.0]]), np.zeros(3), np.zeros(3), matrix, np.array(lens.coefficients)
+    )
+    u, v = pixel.ravel()
+    assert ((u - k.cx) / k.fx, (v - k.cy) / k.fy) == pytest.approx((0.1004, 0.2013), abs=1e-9)
 
 
 def test_a_16_9_colour_calibration_is_moved_onto_4_3_first_as_the_sdk_does():

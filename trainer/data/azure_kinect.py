@@ -81,7 +81,7 @@ def read_kinect(path: Path, out_dir: Path, options: KinectOptions | None = None)
             written, damaged = _write(container, Path(out_dir), recording, pairs)
     except UserError:
         raise
-    except (av.error.FFmpegError, EOFError, OSError) as e:
+    except (av.error.FFmpegError, EOFError) as e:  # PyAV's own errors: a failed write of ours is not the file's
         why = getattr(e, "strerror", None) or "cut short"
         raise UserError(f"{path}: not a readable Matroska recording ({why})") from None
     return written_pairs(
@@ -278,17 +278,18 @@ def _write(
                 break
             continue
         owners = [index] if kind == "colour" else list(wanted_depth[index])
-        try:
+        try:  # only the decoding: what follows is this reader's own arithmetic, and a bug there keeps its traceback
             frame = packet.decode()[0]
-            if kind == "colour":
-                photos[index] = recording.colour_lens.undistorted(frame.to_ndarray(format="rgb24"), nearest=False)
-            else:
-                metres = recording.depth_lens.undistorted(frame.to_ndarray().astype(np.float32) / 1000.0, nearest=True)
-                r, t = recording.rotation, recording.translation
-                depths[index] = reproject_depth(metres, recording.depth_lens.camera, camera, r, t)
+            pixels = frame.to_ndarray(format="rgb24") if kind == "colour" else frame.to_ndarray()
         except (av.error.FFmpegError, IndexError, ValueError):
             damaged.update({pairs.names[i]: f"{kind} frame damaged: FFmpeg cannot decode it" for i in owners})
             continue
+        if kind == "colour":
+            photos[index] = recording.colour_lens.undistorted(pixels, nearest=False)
+        else:
+            metres = recording.depth_lens.undistorted(pixels.astype(np.float32) / 1000.0, nearest=True)
+            r, t = recording.rotation, recording.translation
+            depths[index] = reproject_depth(metres, recording.depth_lens.camera, camera, r, t)
         for i in owners:
             j = pairs.matches[i]
             if i in photos and j in depths and pairs.names[i] not in damaged:

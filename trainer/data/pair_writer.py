@@ -12,7 +12,6 @@ Kinect's), or on a coarser grid over the same view (a phone's LiDAR), which
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +21,8 @@ from contract.geometry import Intrinsics
 from trainer.data.frames import PNG_MAGIC, TRAINED_PIXELS, WRITTEN_DEPTH_SCALE, PairsReader, RecordedPair
 from trainer.registration import upsample_depth
 
-#: A photo as recorded: an encoded JPEG or PNG (bytes), decoded pixels (HxWx3 uint8 RGB) or a PIL image.
-Photo = bytes | np.ndarray | Image.Image
+#: A photo's pixels: HxWx3 uint8 RGB, or a PIL image.
+Photo = np.ndarray | Image.Image
 
 
 class PairWriter:
@@ -45,17 +44,14 @@ class PairWriter:
         """The photos' camera, ``native`` for the size they were recorded at, as written."""
         return native.resized(*self.size)
 
-    def photo(self, name: str, photo: Photo) -> tuple[Path, np.ndarray]:
+    def photo(self, name: str, photo: Photo, encoded: bytes | None = None) -> tuple[Path, np.ndarray]:
         """Write one photo at the written size; the file and its pixels as written.
 
-        Encoded bytes are decoded first (a damaged one raises what PIL raises: the reader skips that pair).
+        ``encoded``: the JPEG or PNG the pixels were decoded from, as recorded, kept byte for byte when
+        the photo is already at the written size. Decoding is the reader's, so that a damaged photo is
+        skipped there, while a failed write (a full disk) is never taken for damage.
         """
-        encoded = photo if isinstance(photo, bytes) else None
-        if encoded is not None:
-            with Image.open(io.BytesIO(encoded)) as im:
-                image = im.convert("RGB")
-        else:
-            image = photo if isinstance(photo, Image.Image) else Image.fromarray(photo)
+        image = photo if isinstance(photo, Image.Image) else Image.fromarray(photo)
         if encoded is not None and image.size == self.size:
             path = self.out / "color" / f"{name}{'.png' if encoded[:8] == PNG_MAGIC else '.jpg'}"
             path.write_bytes(encoded)

@@ -12,7 +12,8 @@ pairs, so this reader:
 3. moves depth into the colour camera when it is not there already, with the rigid
    transform the bag stores (``trainer.data.rosbag_extrinsics``). With none, only the two
    cameras' intrinsics are used, and the reader says so;
-4. writes each pair out as files (colour as stored or PNG, depth as 16-bit millimetres),
+4. writes each pair out at the size fit trains at (``PairWriter``: a compressed photo already that size as
+   stored, others as JPEG; depth as 16-bit millimetres),
    so the rest of ``fit`` reads a bag like any other recording.
 
 Depth units: ``16UC1`` / ``mono16`` are millimetres (REP 118) unless a RealSense "Depth
@@ -34,8 +35,8 @@ from contract.errors import UserError
 from trainer.data.folders import CameraFile
 from trainer.data.frames import DEFAULT_MAX_FRAMES, PairsReader, kept_note, nearest_stamp, spread
 from trainer.data.pair_writer import PairWriter, damaged_note, written_pairs
-from trainer.data.rosbag_cameras import Geometry, overridden_lens, recorded_lens, same_camera
-from trainer.data.rosbag_damage import bag_damage, is_decompression_error
+from trainer.data.rosbag_cameras import Geometry, bag_geometry, is_rectified, same_camera
+from trainer.data.rosbag_damage import damage
 from trainer.data.rosbag_extrinsics import depth_to_colour_extrinsics
 from trainer.data.rosbag_images import (
     COLOUR_ENCODINGS,
@@ -96,9 +97,7 @@ def read_bag(path: Path, out_dir: Path, options: BagOptions | None = None) -> Pa
     and what is wrong, in words. Only what the bag libraries raise for damaged bytes is caught: a bug
     in this reader keeps its traceback.
     """
-    from rosbags.highlevel import AnyReader, AnyReaderError
-    from rosbags.rosbag1 import ReaderError as Ros1Error
-    from rosbags.rosbag2 import ReaderError as Ros2Error
+    from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
     options = options or BagOptions()
@@ -106,12 +105,12 @@ def read_bag(path: Path, out_dir: Path, options: BagOptions | None = None) -> Pa
     try:
         with AnyReader([source], default_typestore=get_typestore(Stores.LATEST)) as reader:
             return _read(reader, Path(path), Path(out_dir), options)
-    except (AnyReaderError, Ros1Error, Ros2Error) as e:
-        raise UserError(f"{path}: {bag_damage(str(e))}") from None
-    except (OSError, RuntimeError) as e:
-        if not is_decompression_error(e):
+    except UserError:
+        raise
+    except Exception as e:
+        if (words := damage(e)) is None:  # not damage: a bug, or a failed write, keeps its traceback
             raise
-        raise UserError(f"{path}: damaged: a compressed chunk cannot be decompressed") from None
+        raise UserError(f"{path}: {words}") from None
 
 
 def _read(reader: Any, path: Path, out: Path, options: BagOptions) -> PairsReader:
@@ -120,8 +119,18 @@ def _read(reader: Any, path: Path, out: Path, options: BagOptions) -> PairsReade
     depth = _choose(path, streams, options.depth_topic, "depth", ("aligned_depth_to_color", "depth"))
     (colour_topic, colour_info), (depth_topic, depth_info) = (_camera_info(reader, path, s) for s in (colour, depth))
     camera_notes: list[str] = []
-    geometry, how = _geometry(
-        reader, path, (colour, colour_topic, colour_info), (depth, depth_topic, depth_info), options, camera_notes
+    units = _depth_units_m(path, reader, depth, options.camera.depth_scale)
+    topics = sorted({(c.topic, c.msgtype) for c in reader.connections})
+    frames = (depth_info.header.frame_id, colour_info.header.frame_id)
+    read = partial(_topic_messages, reader)
+    geometry, how = bag_geometry(
+        path,
+        (colour, colour_topic, colour_info),
+        (depth, depth_topic, depth_info),
+        options.camera,
+        units,
+        lambda: depth_to_colour_extrinsics(read, topics, depth.topic, colour.topic, *frames),
+        camera_notes,
     )
     stamps = {s.topic: _stamps(reader, s.topic) for s in (colour, depth)}
     every = list(enumerate(stamps[colour.topic]))[:: max(1, options.every)]
@@ -152,47 +161,6 @@ def _read(reader: Any, path: Path, out: Path, options: BagOptions) -> PairsReade
     if damaged:
         notes.append(damaged_note(damaged))
     return written_pairs(path.name, pairs, writer.camera(geometry.colour.camera), skipped + damaged, notes)
-
-
-def _geometry(
-    reader: Any,
-    path: Path,
-    colour: tuple[Stream, str, Any],
-    depth: tuple[Stream, str, Any],
-    options: BagOptions,
-    notes: list[str],
-) -> tuple[Geometry, str]:
-    """Both lenses, the depth-to-colour transform and the depth units, and how the depth reaches the colour camera.
-
-    The command line's intrinsics are the colour camera's, in its images' pixels. Depth already aligned
-    to colour (by its topic, or a CameraInfo equal to the colour one) takes the colour lens with them, so
-    an override never moves it; other depth is moved with the bag's extrinsics.
-    """
-    (colour_stream, colour_topic, colour_info), (depth_stream, depth_topic, depth_info) = colour, depth
-    recorded = recorded_lens(path, colour_topic, colour_info, colour_stream.image, notes)
-    colour_lens = overridden_lens(path, colour_topic, recorded, colour_stream.image, options.camera)
-    if options.camera.sets_intrinsics:
-        k = colour_lens.camera
-        notes.append(f"colour camera with the command line's: fx {k.fx:g}, fy {k.fy:g}, cx {k.cx:g}, cy {k.cy:g}")
-    units = _depth_units_m(path, reader, depth_stream, options.camera.depth_scale)
-    depth_lens = None
-    if "aligned_depth_to_color" not in depth_stream.topic:
-        depth_lens = recorded_lens(path, depth_topic, depth_info, depth_stream.image, notes)
-        if depth_lens is None:
-            raise UserError(
-                f"{path}: {depth_topic}: the depth camera's matrix K is all zeros, not a calibration; record a "
-                "calibrated camera_info for it, or depth aligned to colour"
-            )
-    if depth_lens is None or (recorded is not None and same_camera(recorded.camera, depth_lens.camera)):
-        how = "depth is aligned to colour in the bag"
-        return Geometry(colour_lens, colour_lens, np.eye(3), np.zeros(3), units, aligned=True), how
-    topics = sorted({(c.topic, c.msgtype) for c in reader.connections})
-    frames = (depth_info.header.frame_id, colour_info.header.frame_id)
-    read = partial(_topic_messages, reader)
-    (rotation, translation), how = depth_to_colour_extrinsics(
-        read, topics, depth_stream.topic, colour_stream.topic, *frames
-    )
-    return Geometry(depth_lens, colour_lens, rotation, translation, units, aligned=False), how
 
 
 def _streams(reader: Any) -> list[Stream]:
@@ -242,7 +210,7 @@ def _choose(path: Path, streams: list[Stream], wanted: str | None, kind: str, pr
         if named:
             candidates = named
             break
-    rectified = [s for s in candidates if "rect" in s.topic.lower()]
+    rectified = [s for s in candidates if is_rectified(s.topic)]
     if len(rectified) == 1:
         return rectified[0]
     if len(candidates) > 1:
@@ -359,12 +327,15 @@ def _write_pairs(
         if name is None:
             continue
         try:
-            photo = colour_image(message, connection.msgtype)
-            if geometry.colour.model is not None:
-                photo = geometry.colour.undistorted(decoded(photo), nearest=False)
-            colour_files[name] = writer.photo(name, photo)[0]
+            stored = colour_image(message, connection.msgtype)
+            pixels = decoded(stored)
         except FRAME_DAMAGE as e:
             damaged[name] = f"colour frame {frame_damage(e)}"
+            continue
+        if geometry.colour.model is not None:
+            colour_files[name] = writer.photo(name, geometry.colour.undistorted(pixels, nearest=False))[0]
+        else:
+            colour_files[name] = writer.photo(name, pixels, stored if isinstance(stored, bytes) else None)[0]
     written = writer.camera(geometry.colour.camera)
     for connection, bag_ns, message in _messages(reader, depth.topic):
         names = [name for name in wanted_depth.get(_stamp(message, bag_ns), []) if name not in damaged]

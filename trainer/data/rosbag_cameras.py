@@ -11,6 +11,7 @@ rectified image's own camera is the left 3x3 of ``P``, with no distortion left t
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from contract.errors import UserError
 from contract.geometry import Intrinsics
 from trainer.data.folders import INTRINSIC_KEYS, CameraFile
 from trainer.data.lens import Lens
+from trainer.data.rosbag_images import Stream
 
 #: CameraInfo distortion models this reader undoes, with OpenCV: the standard polynomial ones and the fisheye.
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
@@ -36,16 +38,18 @@ def _field(info: Any, name: str) -> np.ndarray:
     return np.asarray(getattr(info, name.lower()) if hasattr(info, name.lower()) else getattr(info, name), np.float64)
 
 
-def recorded_lens(path: Path, topic: str, info: Any, images: tuple[str, int, int], notes: list[str]) -> Lens | None:
+def recorded_lens(
+    path: Path, topic: str, info: Any, images: tuple[str, int, int], notes: list[str], rectified: bool
+) -> Lens | None:
     """The camera a CameraInfo describes, at its images' size, with its lens; None when it is uncalibrated.
 
-    ``images`` is the image topic, its images' width and height (0, 0 where unknown). A CameraInfo for
-    another size of the same images (a driver that reports the sensor's full size) is scaled when the
-    aspect ratio agrees, and refused when it does not.
+    ``images`` is the image topic, its images' width and height (0, 0 where unknown); ``rectified``: the
+    camera of the rectified images (``P``, nothing to undo), else of the raw ones (``K`` and ``D``). A
+    CameraInfo for another size of the same images (a driver that reports the sensor's full size) is
+    scaled when the aspect ratio agrees, and refused when it does not.
     """
     image_topic, image_width, image_height = images
     image = (image_width, image_height)
-    rectified = is_rectified(image_topic)
     matrix = _field(info, "K").reshape(3, 3)
     if rectified:
         projection = _field(info, "P").reshape(3, 4)[:, :3]
@@ -82,6 +86,12 @@ def recorded_lens(path: Path, topic: str, info: Any, images: tuple[str, int, int
     return Lens(intrinsics, model, coefficients)
 
 
+def rectification(info: Any) -> np.ndarray:
+    """A CameraInfo's ``R``: raw camera coordinates into the rectified images' (identity for a lone camera)."""
+    rotation = _field(info, "R").reshape(3, 3)
+    return rotation if np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6) else np.eye(3)
+
+
 def overridden_lens(
     path: Path, topic: str, recorded: Lens | None, images: tuple[str, int, int], override: CameraFile
 ) -> Lens:
@@ -111,6 +121,76 @@ def same_camera(a: Intrinsics, b: Intrinsics) -> bool:
     return (a.width, a.height) == (b.width, b.height) and np.allclose(
         [a.fx, a.fy, a.cx, a.cy], [b.fx, b.fy, b.cx, b.cy], rtol=1e-4
     )
+
+
+def bag_geometry(
+    path: Path,
+    colour: tuple[Stream, str, Any],
+    depth: tuple[Stream, str, Any],
+    override: CameraFile,
+    units: float,
+    extrinsics: Callable[[], tuple[tuple[np.ndarray, np.ndarray], str]],
+    notes: list[str],
+) -> tuple[Geometry, str]:
+    """Both lenses, the depth-to-colour transform and the depth units, and how the depth reaches the colour camera.
+
+    ``colour`` and ``depth`` are each image stream, its CameraInfo's topic and message; ``extrinsics`` gives
+    the bag's depth-to-colour transform and how it was found, asked for only where depth must move.
+
+    The command line's intrinsics are the colour camera's, in its images' pixels. Depth already aligned
+    to colour (by its topic, or a CameraInfo equal to the colour one) is in the raw colour image's
+    pixels: with a raw colour topic it takes the colour lens, overrides and all, and is never moved;
+    beside a rectified one it is undistorted with the raw lens and turned by ``R`` into the rectified
+    camera. Other depth is moved with the bag's extrinsics (into the raw colour frame, then by ``R``).
+    """
+    (colour_stream, colour_topic, colour_info), (depth_stream, depth_topic, depth_info) = colour, depth
+    rectified = is_rectified(colour_stream.topic)
+    recorded = recorded_lens(path, colour_topic, colour_info, colour_stream.image, notes, rectified)
+    colour_lens = overridden_lens(path, colour_topic, recorded, colour_stream.image, override)
+    if override.sets_intrinsics:
+        k = colour_lens.camera
+        notes.append(f"colour camera with the command line's: fx {k.fx:g}, fy {k.fy:g}, cx {k.cx:g}, cy {k.cy:g}")
+    raw_colour = (
+        recorded_lens(path, colour_topic, colour_info, colour_stream.image, [], False) if rectified else recorded
+    )
+    if "aligned_depth_to_color" in depth_stream.topic:
+        depth_lens = None
+    else:
+        depth_lens = recorded_lens(path, depth_topic, depth_info, depth_stream.image, notes, is_rectified(depth_topic))
+        if depth_lens is None:
+            raise UserError(
+                f"{path}: {depth_topic}: the depth camera's matrix K is all zeros, not a calibration; record a "
+                "calibrated camera_info for it, or depth aligned to colour"
+            )
+    if depth_lens is None or (raw_colour is not None and same_camera(raw_colour.camera, depth_lens.camera)):
+        check_aligned_size(path, colour_stream, depth_stream)
+        if not rectified:
+            return Geometry(
+                colour_lens, colour_lens, np.eye(3), np.zeros(3), units, aligned=True
+            ), "depth is aligned to colour in the bag"
+        if raw_colour is None:
+            raise UserError(
+                f"{path}: {colour_topic}: depth aligned to the raw colour image needs its calibrated K and D"
+            )
+        how = (
+            f"depth is aligned to the raw colour image in the bag, and turned into {colour_stream.topic}'s camera by R"
+        )
+        return Geometry(raw_colour, colour_lens, rectification(colour_info), np.zeros(3), units, aligned=False), how
+    (rotation, translation), how = extrinsics()
+    if rectified:  # the extrinsics reach the raw colour frame; the rectified camera is turned from it by R
+        turn = rectification(colour_info)
+        rotation, translation = turn @ rotation, turn @ translation
+    return Geometry(depth_lens, colour_lens, rotation, translation, units, aligned=False), how
+
+
+def check_aligned_size(path: Path, colour: Stream, depth: Stream) -> None:
+    """Depth aligned to colour is the colour images' size, pixel for pixel; a bag that says otherwise is refused."""
+    sizes = {(colour.width, colour.height), (depth.width, depth.height)}
+    if len(sizes) > 1 and (0, 0) not in sizes:
+        raise UserError(
+            f"{path}: {depth.topic} is said to be aligned to colour, but its images are {depth.width}x{depth.height} "
+            f"and {colour.topic}'s {colour.width}x{colour.height}: pass --depth-topic for depth in its own camera"
+        )
 
 
 @dataclass(frozen=True)

@@ -18,9 +18,10 @@ from trainer.fit.budget import Plan
 class FitState(BaseModel):
     """Everything a fit decides before training, saved as ``fit.json``: what ``--resume`` continues."""
 
-    #: Drawn once per fit, and written into the card it publishes: the one thing that tells this fit's
-    #: version from another fit's of the same name in the same run folder.
-    fit_id: str = Field(default_factory=lambda: uuid.uuid4().hex)
+    #: Drawn once per fit (``new_fit_id``), and written into the card it publishes: the one thing that tells
+    #: this fit's version from another fit's of the same name in the same run folder. None in a fit.json
+    #: written before fits had ids.
+    fit_id: str | None = None
     report: list[str]
     data: str
     format: str
@@ -38,20 +39,32 @@ class FitState(BaseModel):
         return None if self.start_from == "scratch" else Path(self.start_from)
 
 
+def new_fit_id() -> str:
+    return uuid.uuid4().hex
+
+
 def published_by(state: FitState, registry: Path, name: str) -> Path | None:
     """The version of ``name`` this fit published, if any: the one whose card carries this fit's id.
 
     Publishing and recording it in fit.json are two steps; a Ctrl-C between them must not make ``--resume``
     publish the same fit again as the next version. An earlier fit of the same name in the same folder
-    published under another id, so its version is never taken for this one's.
+    published under another id, so its version is never taken for this one's. A fit from before ids
+    (``fit_id`` None) can only have published a card without one, from its own training folder.
     """
+    ours = Path(state.config.train.out_dir).resolve() if state.fit_id is None else None
     for version in reversed(list_versions(registry, name)):
         folder = Path(registry) / name / version
         try:
-            fit = load_card(folder).training.fit
+            card = load_card(folder)
         except CardError:
             continue
-        if fit is not None and fit.fit_id == state.fit_id:
+        fit = card.training.fit
+        if fit is None:
+            continue
+        if state.fit_id is not None and fit.fit_id == state.fit_id:
+            return folder
+        out_dir = card.training.config.get("train", {}).get("out_dir")
+        if ours is not None and fit.fit_id is None and out_dir and Path(out_dir).resolve() == ours:
             return folder
     return None
 

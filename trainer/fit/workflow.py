@@ -32,7 +32,7 @@ from trainer.fit.budget import Workload, measure_seconds, plan_training
 from trainer.fit.inspect import inspect_recording, readable
 from trainer.fit.scoring import score_holdout
 from trainer.fit.split import MIN_PAIRS, Split, split_recording
-from trainer.fit.state import FitState, published_by, save_state
+from trainer.fit.state import FitState, new_fit_id, published_by, save_state
 
 #: ``--from`` defaults to the newest version of this model in the bundled registry.
 BASE_MODEL = "rgb2cloud-7scenes"
@@ -221,6 +221,7 @@ def _prepare(options: FitOptions, run: Path, progress: Progress, started: float)
         update={"decay_start": plan.decay_start, "decay_steps": plan.steps - plan.decay_start}
     )
     return FitState(
+        fit_id=new_fit_id(),
         report=[*report, plan.line()],
         data=str(options.data),
         format=recording.format,
