@@ -383,15 +383,6 @@ DEPTH_BY_HAND = {
 }
 
 
-@pytest.mark.parametrize("mode", DEPTH_BY_HAND)
-def test_each_depth_mode_s_camera_is_the_sdk_s_worked_by_hand(mode):
-    calibration = hand_calibration((4096, 3072), [0.5, 0.5, 0.48, 0.64] + [0.0] * 10)
-    lens = mode_lens(Path("hand.mkv"), calibration, "depth", DEPTH_MODES[mode])
-    assert fields(lens.camera) == pytest.approx(DEPTH_BY_HAND[mode])
-    # OpenCV's order is k1, k2, p1, p2, k3, k4, k5, k6; the calibration's ends p2, p1.
-    assert lens.coefficients == pytest.approx((0.1, 0.2, 0.003, 0.007, 0.3, 0.4, 0.5, 0.6))
-
-
 #: A 4:3 colour calibration (cx, cy, fx, fy) = (0.5, 0.5, 0.48, 0.62): per resolution, by hand, from the SDK's
 #: windows (binned sensor, then the rows cut from it): f = f_norm * binned, c = c_norm * binned - offset - 0.5.
 COLOUR_BY_HAND = {
@@ -404,11 +395,19 @@ COLOUR_BY_HAND = {
 }
 
 
-@pytest.mark.parametrize("resolution", COLOUR_BY_HAND)
-def test_each_colour_resolution_s_camera_is_the_sdk_s_worked_by_hand(resolution):
+MODES_BY_HAND = [("depth", DEPTH_MODES[m], m, k) for m, k in DEPTH_BY_HAND.items()] + [
+    ("colour", COLOUR_RESOLUTIONS[r], r, k) for r, k in COLOUR_BY_HAND.items()
+]
+
+
+@pytest.mark.parametrize(("which", "mode", "name", "expected"), MODES_BY_HAND, ids=[m[2] for m in MODES_BY_HAND])
+def test_each_mode_s_camera_is_the_sdk_s_worked_by_hand(which, mode, name, expected):
+    """Depth (cx, cy, fx, fy) = (0.5, 0.49, 0.49, 0.5), colour (0.5, 0.5, 0.48, 0.62), in every mode."""
     calibration = hand_calibration((4096, 3072), [0.5, 0.5, 0.48, 0.62] + [0.0] * 10)
-    lens = mode_lens(Path("hand.mkv"), calibration, "colour", COLOUR_RESOLUTIONS[resolution])
-    assert fields(lens.camera) == pytest.approx(COLOUR_BY_HAND[resolution])
+    lens = mode_lens(Path("hand.mkv"), calibration, which, mode)
+    assert fields(lens.camera) == pytest.approx(expected)
+    if which == "depth":  # OpenCV's order is k1, k2, p1, p2, k3, k4, k5, k6; the calibration's ends p2, p1
+        assert lens.coefficients == pytest.approx((0.1, 0.2, 0.003, 0.007, 0.3, 0.4, 0.5, 0.6))
 
 
 def test_a_lens_s_p1_bends_a_point_as_brown_conrady_says():
