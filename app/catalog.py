@@ -179,7 +179,15 @@ class ModelCatalog:
                 self._refused.pop(key, None)
                 self._loaded[key] = model
                 self._evict()
-            log.info("loaded %s (warm-up %.2fs)", model.label, model.warmup_seconds)
+            log.info(
+                "loaded %s (warm-up %.2fs; %s)",
+                model.label,
+                model.warmup_seconds,
+                "; ".join(
+                    [f"{p} on {e}" for p, e in model.engines.items()]
+                    + [f"no {p}: {why}" for p, why in model.unserved.items()]
+                ),
+            )
         self.on_change(self)
         return model
 
@@ -205,6 +213,8 @@ class ModelCatalog:
                 try:
                     entry["card"] = card_summary(load_card(registries.folder(name, version)))
                     entry["card"]["precisions"] = self._precisions(entry["card"], loaded.get((name, version)))
+                    if (name, version) in loaded:
+                        entry["serving"] = self._serving(loaded[(name, version)])
                 except CardError as e:
                     refused = refused or str(e)
                 entry["refused"] = refused
@@ -218,11 +228,22 @@ class ModelCatalog:
         }
 
     def _precisions(self, summary: dict[str, Any], model: LoadedModel | None) -> list[str]:
-        """The precisions this service can run for a version: a loaded one's graphs that passed their checks,
-        else those its card ships that this backend runs."""
+        """The precisions this service can run for a version: a loaded one's that passed their checks here,
+        else the graphs its card ships that this engine runs."""
         if model is not None:
             return list(model.generators)
-        return summary["precisions"] if self.settings.backend == "onnx" else ["fp32"]
+        return summary["precisions"] if self.settings.engine != "torchscript" else ["fp32"]
+
+    @staticmethod
+    def _serving(model: LoadedModel) -> dict[str, Any]:
+        """How a loaded version runs here: each precision's engine, what auto serves, what was measured at load
+        (generator ms on the sample), and why any precision is not served."""
+        return {
+            "engines": dict(model.engines),
+            "auto": model.auto,
+            "measured_ms": {k: round(v, 1) for k, v in model.measured_ms.items()},
+            "unserved": dict(model.unserved),
+        }
 
 
 def card_summary(card: ModelCard) -> dict[str, Any]:

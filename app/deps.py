@@ -8,7 +8,7 @@ of them with ``app.dependency_overrides``.
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import Depends, HTTPException, Query, Request
 from starlette.concurrency import run_in_threadpool
@@ -20,7 +20,7 @@ from app.observability import ServiceMetrics
 from app.pipeline import RequestSettings
 from app.pool import InferencePool
 from app.settings import Settings
-from contract.runtime import Precision
+from contract.runtime import RunPrecision
 
 MODEL_REFERENCE = r"^[A-Za-z0-9][A-Za-z0-9._-]*(:[0-9A-Za-z.+-]+)?$"
 
@@ -81,17 +81,18 @@ def get_request_settings(
     settings: SettingsDep,
     model: Annotated[LoadedModel, Depends(get_model)],
     precision: Annotated[
-        Precision | None,
+        RunPrecision | Literal["auto"] | None,
         Query(
-            description="the generator graph to run: fp32, or int8 where the version ships one (default: "
-            "RGB2CLOUD_PRECISION); X-Precision names the one that ran"
+            description="how the generator runs: fp32; bf16 where this CPU has bf16 units; int8 where the version "
+            "ships an int8 graph; auto, the faster of fp32 and bf16 (default: RGB2CLOUD_PRECISION). X-Precision "
+            "names the one that ran and X-Engine the engine"
         ),
     ] = None,
 ) -> RequestSettings:
     """The size limits a request's image is held to, from the settings, and the precision it wants.
 
-    A request that names a precision whose graph this version ships but may not serve here (int8 that
-    disagrees with fp32 on this machine) gets 409: it asked for that graph, and it would get other depth.
+    A request that names a precision this version may not serve here because it failed its check (int8 or
+    bf16 depth that disagrees with fp32 on this machine) gets 409: it asked for it, and would get other depth.
     Without ``precision=`` the settings' precision falls back to fp32, and the response says why.
     """
     if precision is not None and precision in model.disagrees:

@@ -7,6 +7,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from PIL import Image
@@ -22,7 +23,8 @@ from contract.card import (
     verify_files,
 )
 from contract.codec import INPUT_ENCODING
-from contract.runtime import INT8_AGREEMENT, ExportedGenerator, OnnxGenerator, Precision, int8_agreement
+from contract.engines import Engine, onnx_runner, runs
+from contract.runtime import PARITY_AGREEMENT, ExportedGenerator, RunPrecision, depth_agreement
 
 
 class ModelLoadError(Exception):
@@ -33,17 +35,22 @@ class ModelLoadError(Exception):
 class LoadedModel:
     card: ModelCard
     path: Path
-    #: A runner per precision the version ships for this backend: always fp32, and int8 with ONNX Runtime when
-    #: the card lists an int8 graph.
-    generators: dict[Precision, ExportedGenerator]
+    #: A runner per precision this version serves here, each on the engine that won it (``engines``): always
+    #: fp32; bf16 where the CPU has bf16 units and it passed its check; int8 where the card lists a graph and
+    #: it passed its check.
+    generators: dict[RunPrecision, ExportedGenerator]
+    engines: dict[RunPrecision, Engine]
+    #: What requests without precision= (or with ``auto``) get: bf16 where it is served and faster, else fp32.
+    auto: RunPrecision
     warmup_seconds: float
     #: The size of the weights files the runtimes hold: what /metrics counts per loaded model.
     weights_bytes: int
-    #: Why a precision is not served by this version: the graph is not there (or not for this backend), or
-    #: it is there and disagrees with fp32 on this machine (``disagrees``, which a request asking for it
-    #: explicitly gets as 409).
-    unserved: dict[Precision, str] = field(default_factory=dict)
-    disagrees: set[Precision] = field(default_factory=set)
+    #: Why a precision is not served here: no graph, an engine or CPU that cannot run it, slower than fp32
+    #: (bf16), or a check it failed (``disagrees``, which a request asking for it explicitly gets as 409).
+    unserved: dict[RunPrecision, str] = field(default_factory=dict)
+    disagrees: set[RunPrecision] = field(default_factory=set)
+    #: Generator milliseconds on the check photo of each candidate measured at load (``openvino fp32``: 41.0).
+    measured_ms: dict[str, float] = field(default_factory=dict)
     #: One generator call at a time: it already uses every inference thread, while the
     #: other pool workers decode and encode around it.
     lock: threading.Lock = field(default_factory=threading.Lock)
@@ -53,14 +60,16 @@ class LoadedModel:
         """``NAME:VERSION``, as requests name it and /metrics labels it."""
         return f"{self.card.name}:{self.card.version}"
 
-    def serving(self, wanted: Precision) -> Precision:
-        """The precision a request that wants ``wanted`` gets: that one if this version ships it, else fp32."""
+    def serving(self, wanted: RunPrecision | Literal["auto"]) -> RunPrecision:
+        """The precision a request that wants ``wanted`` gets: that one if served here, ``auto``'s, else fp32."""
+        if wanted == "auto":
+            return self.auto
         return wanted if wanted in self.generators else "fp32"
 
-    def predict_depth(self, rgb: np.ndarray, precision: Precision = "fp32") -> np.ndarray:
+    def predict_depth(self, rgb: np.ndarray, precision: RunPrecision = "fp32") -> np.ndarray:
         """Metres, HxW float32, for an HxWx3 uint8 image (padded to the grid and cropped back).
 
-        ``precision`` must be one this version ships (``serving`` picks it).
+        ``precision`` must be one this version serves (``serving`` picks it).
         """
         with self.lock:
             raw = self.generators[precision].predict_raw(rgb)
@@ -116,11 +125,25 @@ def check_contract(card: ModelCard, folder: Path) -> None:
         raise ModelLoadError(f"{path}: int8 graph {card.int8.file} is not among the card's files and their sha256")
 
 
-def load_version(folder: Path, settings: Settings) -> LoadedModel:
-    """Verify (sha256, the card's input and output, config vs weights), build the runtimes and warm them up.
+#: The engines each setting of ``RGB2CLOUD_ENGINE`` puts up for every precision.
+CANDIDATES: dict[str, tuple[Engine, ...]] = {
+    "auto": ("onnxruntime", "openvino"),
+    "onnxruntime": ("onnxruntime",),
+    "openvino": ("openvino",),
+    "torchscript": ("torchscript",),
+}
+#: Timed runs of each candidate on the check photo, in turns after one warm-up run each: the median decides.
+TIMED_RUNS = 5
 
-    The int8 graph is loaded beside the fp32 one when the card lists it and the backend is ONNX Runtime, so
-    a request can ask for either; every file is verified whichever the settings prefer.
+
+def load_version(folder: Path, settings: Settings) -> LoadedModel:
+    """Verify (sha256, the card's input and output, config vs weights), build the runtimes, check and warm them.
+
+    Every precision (fp32, bf16, int8) is put up on each engine the settings allow. Each candidate's depth
+    on the check photo (the version's stored sample) is compared with ONNX Runtime fp32's, and one that
+    disagrees is not served; where more than one passes, each is timed there and the fastest kept (what
+    ``auto`` costs at load: one compile and a few runs per candidate). bf16 is served only where the CPU has
+    bf16 units, and only if it beats fp32.
     """
     try:
         card = load_card(folder)
@@ -128,71 +151,165 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
     except CardError as e:
         raise ModelLoadError(str(e)) from e
     check_contract(card, folder)
-    file_name = ONNX_FILE if settings.backend == "onnx" else TORCHSCRIPT_FILE
-    if file_name not in card.files:
-        raise ModelLoadError(f"{folder / file_name}: the card lists no such file for backend {settings.backend!r}")
-    paths: dict[Precision, Path] = {"fp32": folder / file_name}
-    unserved: dict[Precision, str] = {}
-    if card.int8 is None:
-        unserved["int8"] = "this version has no int8 graph"
-    elif settings.backend != "onnx":
-        unserved["int8"] = f"the {settings.backend} backend runs the fp32 graph only"
-    else:
-        paths["int8"] = folder / card.int8.file
-    generators = {precision: _runner(path, card, settings) for precision, path in paths.items()}
-    weights_bytes = sum(path.stat().st_size for path in paths.values())
-    model = LoadedModel(card, folder, generators, 0.0, weights_bytes, unserved)
     start = time.perf_counter()
-    # The warm-up photo is the int8 sample where the version ships one (it is at the card camera's size), so
-    # the warm-up's depths are also the int8 check's.
-    sample = _int8_sample(folder, card)
+    files = _graph_files(folder, card, settings.engine)
+    sample = _sample(folder, card)
     photo = sample if sample is not None else np.zeros((card.camera.height, card.camera.width, 3), np.uint8)
-    warm = {precision: model.predict_depth(photo, precision) for precision in paths}
-    for precision, depth in warm.items():
+    built = _reference(files["fp32"], card, settings)
+    ((_, reference_runner),) = built.items()
+    reference = card.depth_encoding.decode(reference_runner.predict_raw(photo))
+    unserved: dict[RunPrecision, str] = {} if "int8" in files else {"int8": _no_int8(card, settings.engine)}
+    chosen: dict[RunPrecision, tuple[Engine, ExportedGenerator, float]] = {}
+    disagrees: set[RunPrecision] = set()
+    measured: dict[str, float] = {}
+    for precision in ("fp32", "bf16", "int8"):
+        if precision not in files:
+            continue
+        check = (photo, reference, sample)
+        passed, why = _candidates(files[precision], card, settings, precision, check, built)
+        if not passed:
+            unserved[precision] = why
+            disagrees |= {precision} if "disagrees" in why else set()
+            continue
+        timed = len(passed) > 1 or precision == "bf16"
+        times = _median_ms(passed, photo) if timed else dict.fromkeys(passed, 0.0)
+        measured |= {f"{engine} {precision}": ms for engine, ms in times.items() if timed}
+        engine = min(times, key=times.__getitem__)
+        chosen[precision] = (engine, passed[engine], times[engine])
+    if "bf16" in chosen:
+        chosen, unserved = _bf16_if_faster(chosen, unserved, photo)
+    model = LoadedModel(
+        card,
+        folder,
+        {precision: runner for precision, (_, runner, _) in chosen.items()},
+        {precision: engine for precision, (engine, _, _) in chosen.items()},
+        "bf16" if "bf16" in chosen else "fp32",
+        0.0,
+        sum(files[precision].stat().st_size for precision in chosen),
+        unserved,
+        disagrees,
+        measured,
+    )
+    for precision in model.generators:
+        depth = model.predict_depth(photo, precision)
         if depth.shape != (card.camera.height, card.camera.width):
             raise ModelLoadError(
-                f"{paths[precision]}: warm-up returned {depth.shape} for a {card.camera.width}x{card.camera.height} "
+                f"{files[precision]}: warm-up returned {depth.shape} for a {card.camera.width}x{card.camera.height} "
                 "input"
             )
     model.warmup_seconds = time.perf_counter() - start
-    if "int8" in warm and sample is not None and (why := _int8_disagreement(card, warm)):
-        del model.generators["int8"]
-        model.unserved["int8"] = why
-        model.disagrees.add("int8")
     return model
 
 
-def _int8_sample(folder: Path, card: ModelCard) -> np.ndarray | None:
-    """The photo the version's int8 and fp32 depth are compared on (None for versions published without one)."""
+def _graph_files(folder: Path, card: ModelCard, engine: str) -> dict[RunPrecision, Path]:
+    """The file each precision runs: the fp32 graph (ONNX or, for torchscript, TorchScript) for fp32 and bf16,
+    the card's int8 graph for int8; each checked to hold the card's generator."""
+    file_name = TORCHSCRIPT_FILE if engine == "torchscript" else ONNX_FILE
+    if file_name not in card.files:
+        raise ModelLoadError(f"{folder / file_name}: the card lists no such file for engine {engine!r}")
+    files: dict[RunPrecision, Path] = {"fp32": folder / file_name}
+    if engine != "torchscript":
+        files["bf16"] = folder / file_name
+        if card.int8 is not None:
+            files["int8"] = folder / card.int8.file
+    for path in set(files.values()):
+        check_weights(card, path, "torchscript" if engine == "torchscript" else "onnx")
+    return files
+
+
+def _no_int8(card: ModelCard, engine: str) -> str:
+    if card.int8 is None:
+        return "this version has no int8 graph"
+    return f"the {engine} engine runs the fp32 graph only"
+
+
+def _reference(path: Path, card: ModelCard, settings: Settings) -> dict[tuple[Engine, RunPrecision], ExportedGenerator]:
+    """The runner every other is checked against: ONNX Runtime fp32 (TorchScript on its own engine)."""
+    engine: Engine = "torchscript" if settings.engine == "torchscript" else "onnxruntime"
+    return {(engine, "fp32"): _runner(engine, path, card, settings, "fp32")}
+
+
+def _candidates(
+    path: Path,
+    card: ModelCard,
+    settings: Settings,
+    precision: RunPrecision,
+    check: tuple[np.ndarray, np.ndarray, np.ndarray | None],
+    built: dict[tuple[Engine, RunPrecision], ExportedGenerator],
+) -> tuple[dict[Engine, ExportedGenerator], str]:
+    """The engines that run ``precision`` here with depth that agrees with fp32's, and why none does if none.
+
+    ``check`` is the photo, the reference fp32 depth on it, and the version's sample (None without one);
+    ``built`` holds runners already made (the reference), which are not made twice.
+    """
+    photo, reference, sample = check
+    passed: dict[Engine, ExportedGenerator] = {}
+    reasons = []
+    for engine in CANDIDATES[settings.engine]:
+        if why := runs(engine, precision):
+            reasons.append(why)
+            continue
+        if precision != "fp32" and sample is None:
+            reasons.append(f"this version ships no sample photo to check {precision} against fp32 on")
+            continue
+        runner = built.get((engine, precision)) or _runner(engine, path, card, settings, precision)
+        parity = depth_agreement(reference, card.depth_encoding.decode(runner.predict_raw(photo)))
+        if parity["agreement"] >= PARITY_AGREEMENT:
+            passed[engine] = runner
+        else:
+            reasons.append(
+                f"its {precision} {'graph' if precision == 'int8' else 'path'} disagrees with fp32 on this machine "
+                f"({engine}): within 1.25x on {parity['agreement']:.1%} of the sample's pixels "
+                f"({PARITY_AGREEMENT:.0%} needed)"
+            )
+    return passed, "; ".join(dict.fromkeys(reasons))
+
+
+def _median_ms(runners: dict[Engine, ExportedGenerator], photo: np.ndarray) -> dict[Engine, float]:
+    """Median ms of each runner on ``photo``, the runners taking turns so that a noisy moment hits them alike."""
+    times: dict[Engine, list[float]] = {engine: [] for engine in runners}
+    for runner in runners.values():
+        runner.predict_raw(photo)
+    for _ in range(TIMED_RUNS):
+        for engine, runner in runners.items():
+            began = time.perf_counter()
+            runner.predict_raw(photo)
+            times[engine].append((time.perf_counter() - began) * 1000)
+    return {engine: float(np.median(t)) for engine, t in times.items()}
+
+
+def _bf16_if_faster(
+    chosen: dict[RunPrecision, tuple[Engine, ExportedGenerator, float]],
+    unserved: dict[RunPrecision, str],
+    photo: np.ndarray,
+) -> tuple[dict[RunPrecision, tuple[Engine, ExportedGenerator, float]], dict[RunPrecision, str]]:
+    """bf16 only where it beats fp32 (timed on the same photo when fp32 was not): slower, it is refused."""
+    engine, runner, fp32_ms = chosen["fp32"]
+    fp32_ms = fp32_ms or _median_ms({engine: runner}, photo)[engine]
+    bf16_ms = chosen["bf16"][2]
+    if bf16_ms < fp32_ms:
+        return chosen, unserved
+    why = f"bf16 ran {bf16_ms:.1f} ms against fp32's {fp32_ms:.1f} ms ({engine}) here: slower, so not served"
+    return {p: c for p, c in chosen.items() if p != "bf16"}, {**unserved, "bf16": why}
+
+
+def _sample(folder: Path, card: ModelCard) -> np.ndarray | None:
+    """The photo reduced precisions are checked against fp32 on (None for versions published without one)."""
     if card.int8 is None or card.int8.sample is None:
         return None
     with Image.open(folder / card.int8.sample) as im:
         return np.asarray(im.convert("RGB"))
 
 
-def _int8_disagreement(card: ModelCard, depth: dict[Precision, np.ndarray]) -> str | None:
-    """Why the int8 graph may not be served here: its depth on the version's sample photo is not fp32's.
-
-    Export checked the two on the exporting machine; integer arithmetic differs between CPUs (saturation
-    without VNNI), so every machine that loads the version checks again before serving int8.
-    """
-    parity = int8_agreement(depth["fp32"], depth["int8"])
-    if card.int8 is None or parity["agreement"] >= INT8_AGREEMENT:
-        return None
-    return (
-        f"its int8 graph disagrees with fp32 on this machine: within 1.25x on {parity['agreement']:.1%} of the "
-        f"sample's pixels ({card.int8.parity['agreement']:.1%} at export, {INT8_AGREEMENT:.0%} needed)"
-    )
-
-
-def _runner(path: Path, card: ModelCard, settings: Settings) -> ExportedGenerator:
-    """One file's runtime, after checking that its convolutions are the card's generator's."""
-    check_weights(card, path, settings.backend)
+def _runner(
+    engine: Engine, path: Path, card: ModelCard, settings: Settings, precision: RunPrecision
+) -> ExportedGenerator:
+    """One file's runtime on one engine."""
     try:
-        if settings.backend == "onnx":
-            return OnnxGenerator(path, card.input_multiple, settings.threads)
+        if engine != "torchscript":
+            return onnx_runner(engine, path, card.input_multiple, settings.threads, precision)
         from app.torchscript import TorchScriptGenerator
 
         return TorchScriptGenerator(path, card.input_multiple, settings.threads)
     except Exception as e:  # the runtime's own parse errors
-        raise ModelLoadError(f"{path}: the {settings.backend} runtime cannot load it: {e}") from e
+        raise ModelLoadError(f"{path}: the {engine} engine cannot load it: {e}") from e

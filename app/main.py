@@ -34,6 +34,7 @@ EXPOSED_HEADERS = [
     "X-Focal-Ratio",
     "X-Precision",
     "X-Precision-Fallback",
+    "X-Engine",
     "X-Inference-Ms",
     "Server-Timing",
     "Retry-After",
@@ -55,7 +56,7 @@ def create_app(settings: Settings | None = None, catalog: ModelCatalog | None = 
             "serving %s from %s (%s, warm-up %.2fs; other models load on first use, at most %d at once)",
             default.label,
             default.path,
-            settings.backend,
+            ", ".join(f"{p} on {e}" for p, e in default.engines.items()),
             default.warmup_seconds,
             settings.max_loaded,
         )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -13,7 +14,7 @@ from app.loading import LoadedModel
 from app.ply import encode_ply
 from contract.geometry import Intrinsics, point_cloud
 from contract.resample import depth_at_photo
-from contract.runtime import Precision
+from contract.runtime import RunPrecision
 
 
 @dataclass
@@ -47,7 +48,7 @@ class Stopwatch:
 
 
 def infer(
-    model: LoadedModel, rgb: np.ndarray, camera: Intrinsics, max_pixels: int, precision: Precision = "fp32"
+    model: LoadedModel, rgb: np.ndarray, camera: Intrinsics, max_pixels: int, precision: RunPrecision = "fp32"
 ) -> tuple[np.ndarray, float]:
     """Depth in metres at the photo's size by the one rescale rule (``contract.resample``), and the focal ratio."""
     return depth_at_photo(lambda seen: model.predict_depth(seen, precision), rgb, camera, model.card.camera, max_pixels)
@@ -61,22 +62,23 @@ class Inferred:
     depth: np.ndarray
     camera: PhotoCamera
     focal_ratio: float
-    #: The graph that ran, and the one wanted when this version does not ship it.
-    precision: Precision
-    wanted: Precision
+    #: The precision that ran, and the one wanted (``auto``: whichever this version serves fastest here).
+    precision: RunPrecision
+    wanted: RunPrecision | Literal["auto"]
 
     def headers(self, model: LoadedModel) -> dict[str, str]:
-        """Which model, graph and camera made the depth; ``X-Focal-Ratio`` below 1 says the photo was shrunk
-        further, and ``X-Precision-Fallback`` why the precision asked for is not served by this version."""
+        """Which model, precision, engine and camera made the depth; ``X-Focal-Ratio`` below 1 says the photo
+        was shrunk further, and ``X-Precision-Fallback`` why the precision asked for is not served here."""
         headers = {
             "X-Model-Name": model.card.name,
             "X-Model-Version": model.card.version,
             "X-Precision": self.precision,
+            "X-Engine": model.engines[self.precision],
             "X-Intrinsics": self.camera.header(),
             "X-Intrinsics-Source": self.camera.source,
             "X-Focal-Ratio": f"{self.focal_ratio:.4f}",
         }
-        if self.precision != self.wanted:
+        if self.wanted != "auto" and self.precision != self.wanted:
             headers["X-Precision-Fallback"] = f"{self.wanted} asked for; {model.unserved[self.wanted]}"
         return headers
 
@@ -100,7 +102,7 @@ class RequestSettings:
 
     max_pixels: int
     inference_max_pixels: int
-    precision: Precision = "fp32"
+    precision: RunPrecision | Literal["auto"] = "auto"
 
 
 def depth_png(model: LoadedModel, data: bytes, settings: RequestSettings, query: CameraQuery, colormap: bool) -> Result:

@@ -12,7 +12,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from contract.registries import checkout_weights, default_registry
 from contract.resample import INFERENCE_MAX_PIXELS
-from contract.runtime import Precision
+from contract.runtime import RunPrecision
 
 PREFIX = "RGB2CLOUD_"
 #: Variables that were settings once, and what took their place. A deployment that still sets one would
@@ -20,6 +20,7 @@ PREFIX = "RGB2CLOUD_"
 RETIRED_VARIABLES = {
     "RGB2CLOUD_MODEL_NAME": "RGB2CLOUD_MODEL=NAME",
     "RGB2CLOUD_MODEL_VERSION": "RGB2CLOUD_MODEL=NAME:VERSION",
+    "RGB2CLOUD_BACKEND": "RGB2CLOUD_ENGINE (onnxruntime, openvino, torchscript or auto)",
 }
 
 
@@ -66,11 +67,16 @@ class Settings(BaseSettings):
     max_loaded: int = Field(
         4, ge=2, description="models kept loaded at once: the default and at least one a request names"
     )
-    backend: Literal["onnx", "torchscript"] = "onnx"
-    precision: Precision = Field(
-        "fp32",
-        description="the generator graph requests get without precision=: fp32, or int8 where a version ships one "
-        "(ONNX Runtime only; a version without one serves fp32 and says so in X-Precision-Fallback)",
+    engine: Literal["auto", "onnxruntime", "openvino", "torchscript"] = Field(
+        "auto",
+        description="what runs the generator: auto measures ONNX Runtime and OpenVINO on each version as it loads "
+        "and keeps the fastest that passes its check, per precision; torchscript needs the train extra",
+    )
+    precision: RunPrecision | Literal["auto"] = Field(
+        "auto",
+        description="what requests without precision= get: auto, the faster of fp32 and bf16 (where this CPU has "
+        "bf16 units and bf16 passes its check); fp32; bf16; or int8 where a version ships one. A precision a "
+        "version cannot serve here falls back to fp32 and says why in X-Precision-Fallback",
     )
     threads: int = Field(
         default_factory=lambda: os.cpu_count() or 1, ge=1, description="threads each generator call uses"
@@ -100,8 +106,9 @@ class Settings(BaseSettings):
     def _coherent(self) -> Settings:
         if problems := unknown_variables(os.environ):
             raise ValueError("; ".join(problems))
-        if self.backend == "torchscript" and self.precision == "int8":
+        if self.engine == "torchscript" and self.precision in ("int8", "bf16"):
             raise ValueError(
-                "RGB2CLOUD_PRECISION=int8 needs RGB2CLOUD_BACKEND=onnx: the int8 graphs run on ONNX Runtime only"
+                f"RGB2CLOUD_PRECISION={self.precision} needs another RGB2CLOUD_ENGINE than torchscript, which runs "
+                "the fp32 graph only"
             )
         return self

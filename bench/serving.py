@@ -1,13 +1,15 @@
 """Serving benchmark: per-stage times, the default path against every backend, Open3D, concurrency.
 
     python bench/serving.py --registry weights --model rgb2cloud-7scenes [--repeats 20] [--markdown docs/benchmarks.md]
+    python bench/serving.py --engines [--repeats 20]     # the engine rows alone (bench/engines.py), on any CPU
 
 Every figure is a median over ``--repeats`` runs on one 640x480 photo, taken in
 one run on one machine, so the ratios between rows are what to read. The backends
 table runs every published version of the default model on each backend
 (ONNX Runtime, TorchScript, eager PyTorch), with its ratio to the fastest. Open3D
 is optional (``pip install -e '.[bench]'``, and on Debian ``apt-get install
-libusb-1.0-0``); without it that row is skipped.
+libusb-1.0-0``); without it that row is skipped. Every table but the engines' runs ONNX Runtime fp32,
+the reference; ``--engines`` adds (or alone prints) each engine and precision this CPU runs, and ``auto``.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from pathlib import Path
 
 import httpx
 import numpy as np
+from engines import engine_rows
 from isal import isal_zlib
 from PIL import Image
 
@@ -50,11 +53,14 @@ DEFAULT_IMAGE = REPO.parent / "shared/data/7scenes-redkitchen/frame-000900.color
 
 def machine() -> str:
     import onnxruntime
+    import openvino
+
+    from contract.engines import openvino_capabilities
 
     flags = ", ".join(sorted(set(SPEED_FLAGS) & cpu_flags())) or "none"
     return (
-        f"{cpu_description()} (int8 and bf16 flags: {flags}), Python {platform.python_version()}, "
-        f"ONNX Runtime {onnxruntime.__version__}"
+        f"{cpu_description()} (int8 and bf16 flags: {flags}; OpenVINO sees {', '.join(openvino_capabilities())}), "
+        f"Python {platform.python_version()}, ONNX Runtime {onnxruntime.__version__}, OpenVINO {openvino.__version__}"
     )
 
 
@@ -80,7 +86,8 @@ def int8_times(args: argparse.Namespace, photo: Photo) -> dict[str, float]:
         calls = {f"generator {p}": partial(s.run, None, {s.get_inputs()[0].name: photo.x}) for p, s in graphs.items()}
         times = interleaved_ms(calls, r)
         upload = {"image": ("photo.jpg", photo.data)}
-        service = running_service(registry=tmp, threads=str(args.threads), model=f"{name}:{card.version}")
+        model = f"{name}:{card.version}"
+        service = running_service(registry=tmp, threads=str(args.threads), model=model, engine="onnxruntime")
         with service as running, httpx.Client(timeout=60) as client:
             post = partial(client.post, f"{running.url}/depth", files=upload)
             calls = {f"HTTP /depth?precision={p}": partial(post, params={"precision": p}) for p in graphs}
@@ -233,7 +240,8 @@ def http_figures(args: argparse.Namespace, photo: Photo) -> HttpFigures:
     """Requests one at a time (each route, each version), then concurrent clients, through one service."""
     card, r = photo.model.card, args.repeats
     files = {"image": ("photo.jpg", photo.data)}
-    with running_service(registry=str(args.registry), threads=str(args.threads), model=args.model) as service:
+    on = {"registry": str(args.registry), "threads": str(args.threads), "model": args.model, "engine": "onnxruntime"}
+    with running_service(**on) as service:
         client = httpx.Client(timeout=60)
         shares = {route: request_shares(client, service.url, route, files, r) for route in ("/depth", "/pointcloud")}
         totals = {f"HTTP total {route}": split["total"] for route, split in shares.items()}
@@ -351,11 +359,16 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--threads", type=int, default=os.cpu_count())
     parser.add_argument("--markdown", type=Path, help="also write the tables here")
+    parser.add_argument("--engines", action="store_true", help="print the engine rows alone (any CPU)")
     args = parser.parse_args()
 
-    settings = Settings(registry=args.registry, threads=args.threads, model=args.model)
+    settings = Settings(registry=args.registry, threads=args.threads, model=args.model, engine="onnxruntime")
     model = ModelCatalog(settings).load_default()
     photo = Photo.load(args.image, model, settings.max_pixels)
+    engines = engine_rows(args, model.path, photo.rgb, photo.data)
+    if args.engines:
+        print(f"Machine: {machine()}\n{engines}")
+        return
     r = args.repeats
     stages = stage_times(photo, settings.max_pixels, r)
     png_encoders = depth_png_encoders(photo.depth, r)
@@ -374,6 +387,7 @@ def main() -> None:
         + png_table(png_encoders, w, h)
         + backend_table(backends, card)
         + int8_table(int8, card)
+        + engines
         + ply_table(ours, open3d)
         + throughput_table(http)
     )

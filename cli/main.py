@@ -43,11 +43,11 @@ PrecisionOption = Annotated[
 ]
 
 
-def checked_precision(precision: str) -> str:
-    """``--precision``'s value, or a one-line error."""
-    if precision not in ("fp32", "int8"):
-        raise typer.BadParameter(f"--precision {precision!r}: expected fp32 or int8")
-    return precision
+def checked(option: str, value: str, *allowed: str) -> str:
+    """An option's value if it is one of ``allowed``, or a one-line error."""
+    if value not in allowed:
+        raise typer.BadParameter(f"{option} {value!r}: expected {', '.join(allowed[:-1])} or {allowed[-1]}")
+    return value
 
 
 ModelArgument = Annotated[Path, typer.Argument(help="a published version folder, or a checkpoint (.pt)", exists=True)]
@@ -92,7 +92,8 @@ def evaluate(
     samples: Annotated[int, typer.Option(help="rows in samples.png")] = 4,
     inference: Inference = [],  # noqa: B006
     colour_camera: ColourCameraOption = None,
-    precision: Annotated[str, typer.Option(help="fp32, or int8: a published version's int8 graph")] = "fp32",
+    precision: Annotated[str, typer.Option(help="fp32; bf16 (openvino, with bf16 units); int8 (its graph)")] = "fp32",
+    engine: Annotated[str, typer.Option(help="onnxruntime (the reference) or openvino")] = "onnxruntime",
 ) -> None:
     """Score a model with the paper's metrics and print the paper's table."""
     from contract.spec import parse_inference_options
@@ -101,9 +102,8 @@ def evaluate(
 
     source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file)
     colour = parse_colour_camera(colour_camera) if colour_camera else None
-    changes = parse_inference_options(inference)
-    depth_range = (min_depth, max_depth)
-    table = evaluate_source(model, source, out, changes, depth_range, samples, colour, checked_precision(precision))
+    changes, depth_range = parse_inference_options(inference), (min_depth, max_depth)
+    table = evaluate_source(model, source, out, changes, depth_range, samples, colour, precision, engine)
     typer.echo(table)
     typer.echo(f"wrote {out}/metrics.json, metrics.md, pc_rmse_curve.png, samples.png")
 
@@ -146,7 +146,7 @@ def export(
         scores,
         parity_image,
         changes,
-        precision=checked_precision(precision),
+        precision=checked("--precision", precision, "fp32", "int8"),
     )
     card = load_card(target)
     for file_name, digest in card.files.items():
@@ -272,7 +272,7 @@ def fit(
         resume=resume,
         overrides=set_,
         steps=steps,
-        precision=checked_precision(precision),
+        precision=checked("--precision", precision, "fp32", "int8"),
     )
     try:
         run(options, typer.echo)

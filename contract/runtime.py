@@ -21,13 +21,16 @@ from contract.geometry import pad_to_multiple
 
 #: The graphs a version can ship: fp32 always, int8 beside it when exported with ``--precision int8``.
 Precision = Literal["fp32", "int8"]
-#: The share of pixels whose int8 depth must be within 1.25x of the fp32 depth (δ1 with fp32 as the truth):
-#: at export on the parity photo, and again wherever a version loads, on the sample it ships.
-INT8_AGREEMENT = 0.95
+#: How a generator runs: a graph at its own precision, or the fp32 graph on the CPU's bf16 units (OpenVINO).
+RunPrecision = Literal["fp32", "bf16", "int8"]
+#: The share of pixels whose reduced-precision depth (int8, bf16) must be within 1.25x of the fp32 depth (δ1
+#: with fp32 as the truth): at export on the parity photo, and again wherever a version loads, on the sample
+#: it ships, before that precision is served there.
+PARITY_AGREEMENT = 0.95
 
 
-def int8_agreement(reference: np.ndarray, depth: np.ndarray) -> dict[str, float]:
-    """How far int8 depth is from fp32 depth: ``agreement`` (the share within 1.25x) and ``median_rel``."""
+def depth_agreement(reference: np.ndarray, depth: np.ndarray) -> dict[str, float]:
+    """How far reduced-precision depth is from fp32 depth: ``agreement`` (the share within 1.25x) and ``median_rel``."""
     valid = (reference > 0) & (depth > 0)
     if not valid.any():
         return {"agreement": 0.0, "median_rel": 1.0}

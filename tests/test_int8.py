@@ -25,7 +25,7 @@ from contract.card import (
     publish,
     sha256_file,
 )
-from contract.runtime import INT8_AGREEMENT, OnnxGenerator
+from contract.runtime import PARITY_AGREEMENT, OnnxGenerator
 from harness.service import running_service
 from trainer.quantize import int8_parity, quantize_generator
 
@@ -79,12 +79,12 @@ def test_int8_depth_agrees_with_fp32_within_the_tolerance_on_other_photos(int8_r
     registry, _ = int8_registry
     version = registry / "tiny" / "0.1.0"
     card = load_card(version)
-    assert card.int8.parity["agreement"] >= INT8_AGREEMENT
+    assert card.int8.parity["agreement"] >= PARITY_AGREEMENT
     kitchen = SEVEN_SCENES / "frame-000900.color.jpg"  # a test frame: not among the calibration frames
     with Image.open(kitchen) as im:
         photo = np.asarray(im.convert("RGB"))
     parity = int8_parity(version / ONNX_FILE, version / INT8_ONNX_FILE, photo, card.input_multiple, card.depth_encoding)
-    assert parity["agreement"] >= INT8_AGREEMENT
+    assert parity["agreement"] >= PARITY_AGREEMENT
     # And the two graphs are not the same graph: int8 changes the numbers a little.
     fp32 = OnnxGenerator(version / ONNX_FILE, card.input_multiple).predict_raw(photo)
     int8 = OnnxGenerator(version / INT8_ONNX_FILE, card.input_multiple).predict_raw(photo)
@@ -216,7 +216,7 @@ def test_cors_exposes_the_precision_headers(both):
             timeout=60,
         )
         exposed = {h.strip().lower() for h in r.headers["access-control-expose-headers"].split(",")}
-        assert {"x-precision", "x-precision-fallback"} <= exposed
+        assert {"x-precision", "x-precision-fallback", "x-engine"} <= exposed
 
 
 def models(url: str) -> list[dict]:

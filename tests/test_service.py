@@ -343,9 +343,10 @@ def test_a_corrupt_model_stops_startup_with_one_clear_line(registry, tmp_path):
     [
         ({"RGB2CLOUD_MODEL_NAME": "office"}, "RGB2CLOUD_MODEL_NAME is retired: set RGB2CLOUD_MODEL=NAME instead"),
         ({"RGB2CLOUD_MODELS": "office"}, "RGB2CLOUD_MODELS is not a setting"),
+        ({"RGB2CLOUD_BACKEND": "torchscript"}, "RGB2CLOUD_BACKEND is retired: set RGB2CLOUD_ENGINE"),
         (
-            {"RGB2CLOUD_BACKEND": "torchscript", "RGB2CLOUD_PRECISION": "int8"},
-            "RGB2CLOUD_PRECISION=int8 needs RGB2CLOUD_BACKEND=onnx",
+            {"RGB2CLOUD_ENGINE": "torchscript", "RGB2CLOUD_PRECISION": "int8"},
+            "RGB2CLOUD_PRECISION=int8 needs another RGB2CLOUD_ENGINE than torchscript",
         ),
     ],
 )
@@ -367,12 +368,12 @@ def test_the_client_reads_host_and_port_from_the_settings(monkeypatch):
         service_url()  # the client validates as the service does
 
 
-def test_torchscript_backend_serves_the_same_depth(registry, service):
+def test_the_torchscript_engine_serves_the_same_depth(registry, service):
     rgb = tum_rgb(97, 71)
     onnx_png = post(service, "/depth", png_bytes(rgb)).content
-    with running_service(registry=str(registry), backend="torchscript", threads="1") as running:
+    with running_service(registry=str(registry), engine="torchscript", threads="1") as running:
         r = post(running.url, "/depth", png_bytes(rgb))
-    assert r.status_code == 200
+    assert r.status_code == 200 and r.headers["x-engine"] == "torchscript"
     with Image.open(io.BytesIO(r.content)) as a, Image.open(io.BytesIO(onnx_png)) as b:
         assert np.abs(np.asarray(a).astype(int) - np.asarray(b).astype(int)).max() <= 1
 

@@ -17,10 +17,11 @@ import numpy as np
 from tqdm import tqdm
 
 from contract.card import METRIC_KEYS, ONNX_FILE, PAPER_METRICS, load_card, verify_files
+from contract.engines import Engine, onnx_runner, runs
 from contract.errors import UserError
 from contract.geometry import ColourCamera, Intrinsics
 from contract.resample import DepthRun, depth_at_photo, inference_max_pixels
-from contract.runtime import OnnxGenerator, Precision
+from contract.runtime import RunPrecision
 from trainer.checkpoint import load_graph
 from trainer.config import DataSource
 from trainer.data.formats import describe, open_source
@@ -128,25 +129,38 @@ def evaluate_frames(
     return result, per_image, grid
 
 
-def load_predictor(path: Path, inference: dict[str, Any] | None = None, precision: Precision = "fp32") -> Predictor:
+def load_predictor(
+    path: Path,
+    inference: dict[str, Any] | None = None,
+    precision: RunPrecision = "fp32",
+    engine: Engine = "onnxruntime",
+) -> Predictor:
     """The predictor of a checkpoint (.pt) or a published version folder, at the model's own camera.
 
     A version folder is checked against its card (sha256) and, as exported, run the
     way the service runs it: ONNX Runtime, then the card's depth encoding. With
     ``inference`` (other inference settings for the same weights) a version runs
     eagerly from its TorchScript weights instead, as a checkpoint does. ``precision="int8"`` runs a version's
-    int8 ONNX graph.
+    int8 ONNX graph; ``engine`` runs a version's ONNX graphs on ONNX Runtime or OpenVINO (``bf16`` on
+    OpenVINO, where the CPU has bf16 units), so the tables and the service can agree.
     """
     path = Path(path)
-    if precision == "int8" and not (path.is_dir() and not inference):
-        raise UserError(f"{path}: --precision int8 runs a published version's int8 graph, as published")
+    if precision not in ("fp32", "bf16", "int8") or engine not in ("onnxruntime", "openvino"):
+        raise UserError(
+            f"--precision {precision!r} --engine {engine!r}: expected fp32, bf16 or int8 on onnxruntime or openvino"
+        )
+    if (precision != "fp32" or engine != "onnxruntime") and not (path.is_dir() and not inference):
+        raise UserError(f"{path}: --precision and --engine run a published version's ONNX graphs, as published")
+    if why := runs(engine, precision):
+        raise UserError(f"--engine {engine} --precision {precision}: {why}")
     if path.is_dir() and not inference:
         card = load_card(path)
         verify_files(path, card)
         if precision == "int8" and card.int8 is None:
             raise UserError(f"{path}: this version has no int8 graph (publish one with export --precision int8)")
-        file_name, how = (card.int8.file, "ONNX int8") if precision == "int8" and card.int8 else (ONNX_FILE, "ONNX")
-        runner = OnnxGenerator(path / file_name, card.input_multiple)
+        file_name = card.int8.file if precision == "int8" and card.int8 else ONNX_FILE
+        runner = onnx_runner(engine, path / file_name, card.input_multiple, 0, precision)
+        how = {"fp32": "ONNX", "int8": "ONNX int8"}[precision] if engine == "onnxruntime" else f"{engine} {precision}"
         return Predictor(
             lambda rgb: card.depth_encoding.decode(runner.predict_raw(rgb)),
             card.camera,
@@ -232,13 +246,14 @@ def score_source(
     depth_range: tuple[float, float],
     *,
     inference: dict[str, Any] | None = None,
-    precision: Precision = "fp32",
+    precision: RunPrecision = "fp32",
+    engine: Engine = "onnxruntime",
     samples: int = 0,
     colour_camera: ColourCamera | None = None,
     diagnostics: Sequence[Diagnostic] = (),
 ) -> tuple[dict, list[dict], list[tuple[np.ndarray, np.ndarray, np.ndarray]], str]:
     """``evaluate_frames`` of a checkpoint or version on a data source, with the model's label."""
-    predict = load_predictor(model, inference, precision)
+    predict = load_predictor(model, inference, precision, engine)
     result, per_image, grid = evaluate_frames(
         predict,
         open_source(source),
@@ -260,7 +275,8 @@ def evaluate_source(
     depth_range: tuple[float, float],
     samples: int,
     colour_camera: ColourCamera | None = None,
-    precision: Precision = "fp32",
+    precision: RunPrecision = "fp32",
+    engine: Engine = "onnxruntime",
 ) -> str:
     """``rgb2cloud evaluate``: score ``model`` on ``source``, write the reports to ``out``, return the table."""
     result, per_image, grid, label = score_source(
@@ -269,6 +285,7 @@ def evaluate_source(
         depth_range,
         inference=inference,
         precision=precision,
+        engine=engine,
         samples=samples,
         colour_camera=colour_camera,
     )

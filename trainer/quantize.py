@@ -31,7 +31,7 @@ import onnx
 from contract.codec import DepthEncoding
 from contract.geometry import Intrinsics
 from contract.resample import inference_max_pixels, to_model_camera
-from contract.runtime import OnnxGenerator, int8_agreement, to_grid
+from contract.runtime import OnnxGenerator, depth_agreement, to_grid
 from trainer.data.frames import FrameReader
 
 #: ONNX Runtime's calibration methods, by the names the card and the command line use.
@@ -173,7 +173,7 @@ def quantize_generator(
 
 
 def int8_parity(fp32: Path, int8: Path, image: np.ndarray, multiple: int, encoding: DepthEncoding) -> dict[str, float]:
-    """How far the int8 graph's depth is from the fp32 graph's on one photo (``contract.runtime.int8_agreement``)."""
+    """How far the int8 graph's depth is from the fp32 graph's on one photo (``contract.runtime.depth_agreement``)."""
     reference = encoding.decode(OnnxGenerator(fp32, multiple).predict_raw(image))
     depth = encoding.decode(OnnxGenerator(int8, multiple).predict_raw(image))
-    return int8_agreement(reference, depth)
+    return depth_agreement(reference, depth)

@@ -1,0 +1,186 @@
+"""Engines: ONNX Runtime and OpenVINO run the bundled model's graphs alike, reduced precision is checked where it
+loads, and the service says which engine and precision made each depth.
+
+Every engine and precision that can run on this machine's CPU is exercised on the bundled model; bf16 needs a
+CPU with bf16 units (AMX, AVX512-BF16), and where this one has none its tests skip, saying so. The checks that
+refuse a disagreeing or slower bf16 path run everywhere, on a runner made to disagree or to be slow.
+"""
+
+from __future__ import annotations
+
+import io
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from conftest import REPO, SEVEN_SCENES, TUM_FRAME
+from PIL import Image
+
+import app.loading
+from app.loading import load_version
+from app.settings import Settings
+from contract.card import load_card
+from contract.engines import bf16_units, openvino_capabilities, runs
+from contract.runtime import depth_agreement
+from harness.service import running_service
+from trainer.evaluate import load_predictor
+
+BUNDLED = REPO / "weights"
+VERSION = BUNDLED / "rgb2cloud-7scenes" / "0.9.0"
+MODEL = "rgb2cloud-7scenes:0.9.0"
+#: Every engine and precision the bundled model ships, with why it cannot run on this CPU (None: it can).
+PATHS = [(e, p, runs(e, p)) for e in ("onnxruntime", "openvino") for p in ("fp32", "bf16", "int8")]
+NO_BF16 = f"this CPU has no bf16 units (OpenVINO offers {', '.join(openvino_capabilities())})"
+
+
+def photo(width: int, height: int) -> bytes:
+    """A real photo (TUM fr3 office) resized to an odd size, as PNG."""
+    image = Image.open(TUM_FRAME / "TUM_color.png").convert("RGB").resize((width, height), Image.BILINEAR)
+    buffer = io.BytesIO()
+    image.save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def depth_mm(response: httpx.Response) -> np.ndarray:
+    with Image.open(io.BytesIO(response.content)) as im:
+        return np.asarray(im, dtype=np.float64)
+
+
+@pytest.fixture(scope="module")
+def reference() -> dict[tuple[int, int], np.ndarray]:
+    """ONNX Runtime fp32's depth (mm) of the odd-size photos, from a service on that engine alone."""
+    out = {}
+    with running_service(bundled_registry=str(BUNDLED), model=MODEL, engine="onnxruntime") as service:
+        for size in ((517, 333), (97, 71)):
+            r = httpx.post(f"{service.url}/depth", files={"image": ("p.png", photo(*size))}, timeout=120)
+            assert r.headers["x-engine"] == "onnxruntime" and r.headers["x-precision"] == "fp32"
+            out[size] = depth_mm(r)
+    return out
+
+
+@pytest.mark.parametrize(("engine", "precision", "why"), PATHS, ids=[f"{e}-{p}" for e, p, _ in PATHS])
+def test_each_engine_and_precision_serves_depth_at_odd_sizes_that_agrees_with_fp32(reference, engine, precision, why):
+    if why:
+        pytest.skip(why)
+    with running_service(bundled_registry=str(BUNDLED), model=MODEL, engine=engine, threads="2") as service:
+        for size, truth in reference.items():
+            r = httpx.post(
+                f"{service.url}/depth",
+                files={"image": ("p.png", photo(*size))},
+                params={"precision": precision},
+                timeout=120,
+            )
+            assert r.status_code == 200, r.text
+            assert (r.headers["x-engine"], r.headers["x-precision"]) == (engine, precision)
+            assert "x-precision-fallback" not in r.headers
+            depth = depth_mm(r)
+            assert depth.shape == truth.shape == (size[1], size[0])
+            if precision == "fp32":  # the same arithmetic: a millimetre of rounding at most
+                assert np.abs(depth - truth).max() <= 2, (engine, size)
+            else:
+                assert depth_agreement(truth, depth)["agreement"] >= 0.95, (engine, precision, size)
+
+
+def test_auto_measures_both_engines_at_load_and_says_what_it_chose(reference):
+    with running_service(bundled_registry=str(BUNDLED), model=MODEL, threads="2") as service:
+        r = httpx.post(f"{service.url}/depth", files={"image": ("p.png", photo(517, 333))}, timeout=120)
+        expected = "bf16" if bf16_units() else "fp32"
+        assert r.headers["x-precision"] == expected and r.headers["x-engine"] in ("onnxruntime", "openvino")
+        listed = httpx.get(f"{service.url}/v1/models", timeout=10).json()["models"]
+        version = next(v for m in listed for v in m["versions"] if f"{m['name']}:{v['version']}" == MODEL)
+        serving = version["serving"]
+        assert serving["auto"] == expected and serving["engines"]["fp32"] == r.headers["x-engine"]
+        assert {"onnxruntime fp32", "openvino fp32", "onnxruntime int8", "openvino int8"} <= set(serving["measured_ms"])
+        fastest = min(("onnxruntime", "openvino"), key=lambda e: serving["measured_ms"][f"{e} fp32"])
+        assert serving["engines"]["fp32"] == fastest
+        if not bf16_units():
+            assert serving["unserved"]["bf16"] == NO_BF16 and version["card"]["precisions"] == ["fp32", "int8"]
+            asked = httpx.post(
+                f"{service.url}/depth",
+                files={"image": ("p.png", photo(97, 71))},
+                params={"precision": "bf16"},
+                timeout=60,
+            )
+            assert asked.status_code == 200 and asked.headers["x-precision"] == "fp32"
+            assert asked.headers["x-precision-fallback"] == f"bf16 asked for; {NO_BF16}"
+        assert np.abs(depth_mm(r) - reference[(517, 333)]).max() <= 2 or expected == "bf16"
+
+
+class Scaled:
+    """A runner whose depth is the real one's, made wrong (x ``factor``) or slow (``delay_s`` a call)."""
+
+    def __init__(self, real, factor: float = 1.0, delay_s: float = 0.0):
+        self.real, self.factor, self.delay_s, self.multiple = real, factor, delay_s, real.multiple
+
+    def predict_raw(self, rgb: np.ndarray) -> np.ndarray:
+        time.sleep(self.delay_s)
+        raw = self.real.predict_raw(rgb)
+        return np.clip((raw + 1) * self.factor - 1, -1, 1) if self.factor != 1 else raw
+
+
+def fake_bf16(monkeypatch, factor: float = 1.0, delay_s: float = 0.0) -> None:
+    """This CPU offered bf16, and its bf16 path is the fp32 one made wrong or slow: the checks decide."""
+    real = app.loading.onnx_runner
+    monkeypatch.setattr("contract.engines.bf16_units", lambda: True)
+
+    def runner(engine, path, multiple, threads, precision):
+        made = real(engine, path, multiple, threads, "fp32" if precision == "bf16" else precision)
+        return Scaled(made, factor, delay_s) if precision == "bf16" else made
+
+    monkeypatch.setattr(app.loading, "onnx_runner", runner)
+
+
+def test_a_bf16_path_that_disagrees_with_fp32_is_not_served_and_asked_for_is_409(monkeypatch):
+    fake_bf16(monkeypatch, factor=1.6)
+    model = load_version(VERSION, Settings(bundled_registry=BUNDLED, engine="openvino", threads=2))
+    assert "bf16" not in model.generators and "bf16" in model.disagrees and model.auto == "fp32"
+    assert model.unserved["bf16"].startswith("its bf16 path disagrees with fp32 on this machine (openvino): within")
+    from fastapi import HTTPException
+
+    from app.deps import get_request_settings
+
+    with pytest.raises(HTTPException) as refused:
+        get_request_settings(Settings(), model, "bf16")
+    assert refused.value.status_code == 409 and "bf16 path disagrees" in refused.value.detail
+
+
+def test_a_bf16_path_slower_than_fp32_is_refused_and_a_faster_one_is_auto(monkeypatch):
+    fake_bf16(monkeypatch, delay_s=0.3)
+    slow = load_version(VERSION, Settings(bundled_registry=BUNDLED, engine="openvino", threads=2))
+    assert "bf16" not in slow.generators and "slower, so not served" in slow.unserved["bf16"]
+    assert "bf16" not in slow.disagrees  # not wrong, only slow: asked for, it falls back with the reason
+    monkeypatch.undo()
+    fake_bf16(monkeypatch)
+    model = load_version(VERSION, Settings(bundled_registry=BUNDLED, engine="openvino", threads=2))
+    # The same arithmetic as fp32 here, so "faster" is a coin toss: either way the rule is kept.
+    assert ("bf16" in model.generators) == (model.auto == "bf16") == (model.measured_ms["openvino bf16"] < _fp32(model))
+
+
+def _fp32(model) -> float:
+    return model.measured_ms.get("openvino fp32") or float("inf")
+
+
+def test_evaluate_on_openvino_scores_as_onnx_runtime_does():
+    from trainer.data.sevenscenes import SevenScenesReader
+    from trainer.evaluate import evaluate_frames
+
+    frames = SevenScenesReader(SEVEN_SCENES, "850,900,950")
+    scores = {}
+    for engine in ("onnxruntime", "openvino"):
+        predictor = load_predictor(VERSION, engine=engine)
+        assert predictor.label.endswith("(ONNX)" if engine == "onnxruntime" else "(openvino fp32)")
+        scores[engine] = evaluate_frames(predictor, frames, min_m=0.1, max_m=10.0)[0]
+    assert scores["openvino"]["delta1"] == pytest.approx(scores["onnxruntime"]["delta1"], abs=1e-3)
+    assert scores["openvino"]["rel"] == pytest.approx(scores["onnxruntime"]["rel"], abs=1e-3)
+
+
+def test_evaluate_refuses_bf16_without_the_units_in_one_line():
+    if bf16_units():
+        pytest.skip("this CPU has bf16 units: bf16 runs")
+    from contract.errors import UserError
+
+    with pytest.raises(UserError, match="--engine openvino --precision bf16: this CPU has no bf16 units"):
+        load_predictor(VERSION, precision="bf16", engine="openvino")
+    assert load_card(VERSION).int8 is not None and Path(VERSION).is_dir()
