@@ -237,10 +237,12 @@ class ModelCatalog:
     @staticmethod
     def _serving(model: LoadedModel) -> dict[str, Any]:
         """How a loaded version runs here: each precision's engine, what auto serves, what was measured at load
-        (generator ms on the sample), and why any precision is not served."""
+        (generator ms on the sample), how long its load's checks and measurements took, and why any precision
+        is not served."""
         return {
             "engines": dict(model.engines),
             "auto": model.auto,
+            "load_s": round(model.warmup_seconds, 2),
             "measured_ms": {k: round(v, 1) for k, v in model.measured_ms.items()},
             "unserved": dict(model.unserved),
         }

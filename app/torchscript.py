@@ -1,4 +1,4 @@
-"""The optional TorchScript backend (``RGB2CLOUD_BACKEND=torchscript``): needs the ``train`` extra.
+"""The optional TorchScript engine (``RGB2CLOUD_ENGINE=torchscript``): needs the ``train`` extra.
 
 Kept apart from the rest of the service, which never imports torch: ``app.loading``
 imports this module only when the backend is asked for.

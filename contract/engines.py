@@ -42,8 +42,9 @@ class OpenVinoGenerator:
         self.multiple = multiple
 
     def predict_raw(self, rgb: np.ndarray) -> np.ndarray:
+        """The output copied out of the infer request's own buffer, which its next call overwrites."""
         self.request.infer({0: to_grid(rgb, self.multiple)})
-        return from_grid(self.request.get_output_tensor(0).data, *rgb.shape[:2])
+        return from_grid(self.request.get_output_tensor(0).data, *rgb.shape[:2]).copy()
 
 
 @lru_cache(maxsize=1)
@@ -62,13 +63,12 @@ def bf16_units() -> bool:
 
 def runs(engine: Engine, precision: RunPrecision) -> str | None:
     """Why ``engine`` cannot run ``precision`` here, or None when it can."""
-    if precision == "bf16":
-        if engine == "torchscript" or not bf16_units():
-            return f"this CPU has no bf16 units (OpenVINO offers {', '.join(openvino_capabilities())})"
-        if engine != "openvino":
-            return f"{engine} runs no bf16: OpenVINO does"
-    if precision == "int8" and engine == "torchscript":
+    if precision != "fp32" and engine == "torchscript":
         return "the torchscript engine runs the fp32 graph only"
+    if precision == "bf16" and engine != "openvino":
+        return f"the {engine} engine runs no bf16 (OpenVINO does, on CPUs with bf16 units)"
+    if precision == "bf16" and not bf16_units():
+        return f"this CPU has no bf16 units (OpenVINO offers {', '.join(openvino_capabilities())})"
     return None
 
 

@@ -182,7 +182,8 @@ def test_a_version_whose_int8_file_does_not_match_its_card_is_refused(both):
     assert (broken / CARD_FILE).is_file()
 
 
-def test_an_int8_graph_that_disagrees_with_fp32_where_it_loads_is_not_served(both, tmp_path):
+@pytest.mark.parametrize("engine", ["auto", "openvino"])
+def test_an_int8_graph_that_disagrees_with_fp32_where_it_loads_is_not_served(both, tmp_path, engine):
     """Export checked int8 on its own machine; every machine that loads the version checks again, on the sample
     photo the version ships. An int8 graph whose integer arithmetic gives other depth (here: calibrated on black
     frames, as a CPU that saturates would compute) is not served: asked for by name, 409; by default, fp32 with
@@ -193,16 +194,19 @@ def test_an_int8_graph_that_disagrees_with_fp32_where_it_loads_is_not_served(bot
     broken = tmp_path / INT8_ONNX_FILE
     quantize_generator(good / ONNX_FILE, broken, black, card.input_multiple, "minmax", "none")
     files = {f: good / f for f in INT8_FILES} | {INT8_ONNX_FILE: broken}
-    publish(both, card.model_copy(update={"name": "saturating"}), files)
-    with running_service(registry=str(both), model="saturating", threads="1", precision="int8") as service:
+    name = f"saturating-{engine}"
+    publish(both, card.model_copy(update={"name": name}), files)
+    with running_service(registry=str(both), model=name, threads="1", precision="int8", engine=engine) as service:
         asked = depth(service.url, precision="int8")
         assert asked.status_code == 409
         assert "its int8 graph disagrees with fp32 on this machine" in asked.json()["detail"]
         fallback = depth(service.url)
         assert fallback.status_code == 200 and fallback.headers["x-precision"] == "fp32"
         assert fallback.headers["x-precision-fallback"].startswith("int8 asked for; its int8 graph disagrees")
+        if engine == "openvino":
+            assert fallback.headers["x-engine"] == "openvino"
         listed = {m["name"]: m["versions"][0]["card"]["precisions"] for m in models(service.url)}
-        assert listed["saturating"] == ["fp32"] and listed["quant"] == ["fp32", "int8"]
+        assert listed[name] == ["fp32"] and listed["quant"] == ["fp32", "int8"]
         assert depth(service.url, model="quant", precision="int8").headers["x-precision"] == "int8"
 
 

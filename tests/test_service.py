@@ -373,7 +373,10 @@ def test_the_torchscript_engine_serves_the_same_depth(registry, service):
     onnx_png = post(service, "/depth", png_bytes(rgb)).content
     with running_service(registry=str(registry), engine="torchscript", threads="1") as running:
         r = post(running.url, "/depth", png_bytes(rgb))
+        bf16 = post(running.url, "/depth?precision=bf16", png_bytes(rgb))
     assert r.status_code == 200 and r.headers["x-engine"] == "torchscript"
+    assert bf16.status_code == 200 and bf16.headers["x-precision"] == "fp32"
+    assert bf16.headers["x-precision-fallback"] == "bf16 asked for; the torchscript engine runs the fp32 graph only"
     with Image.open(io.BytesIO(r.content)) as a, Image.open(io.BytesIO(onnx_png)) as b:
         assert np.abs(np.asarray(a).astype(int) - np.asarray(b).astype(int)).max() <= 1
 
