@@ -162,9 +162,12 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
     built = _reference(files["fp32"], card, settings)
     ((_, reference_runner),) = built.items()
     reference = card.depth_encoding.decode(reference_runner.predict_raw(photo))
-    unserved: dict[RunPrecision, str] = {} if "int8" in files else {"int8": _no_int8(card, settings.engine)}
-    if "bf16" not in files:
-        unserved["bf16"] = "the torchscript engine runs the fp32 graph only"
+    # A precision without a file to run: no int8 graph in the card, or an engine that runs fp32 only.
+    unserved: dict[RunPrecision, str] = {
+        p: "this version has no int8 graph" if p == "int8" and card.int8 is None else runs(settings.engine, p) or ""
+        for p in ("bf16", "int8")
+        if p not in files
+    }
     chosen: dict[RunPrecision, tuple[Engine, ExportedGenerator, float]] = {}
     disagrees: set[RunPrecision] = set()
     measured: dict[str, float] = {}
@@ -223,12 +226,6 @@ def _graph_files(folder: Path, card: ModelCard, engine: str) -> dict[RunPrecisio
     for path in set(files.values()):
         check_weights(card, path, "torchscript" if engine == "torchscript" else "onnx")
     return files
-
-
-def _no_int8(card: ModelCard, engine: str) -> str:
-    if card.int8 is None:
-        return "this version has no int8 graph"
-    return f"the {engine} engine runs the fp32 graph only"
 
 
 def _reference(path: Path, card: ModelCard, settings: Settings) -> dict[tuple[Engine, RunPrecision], ExportedGenerator]:

@@ -17,7 +17,7 @@ import httpx
 import numpy as np
 
 from contract.card import ONNX_FILE
-from contract.engines import Engine, onnx_runner, runs
+from contract.engines import Engine, onnx_runner, openvino_capabilities, runs
 from contract.runtime import RunPrecision
 from harness.service import running_service
 from harness.timing import median_ms
@@ -52,8 +52,11 @@ def engine_rows(args: argparse.Namespace, folder: Path, photo_rgb: np.ndarray, u
     http, chosen = _http_ms(args, folder, upload, [e for e in ENGINES if any(k[0] == e for k in runnable)])
     delta1 = {key: _delta1(folder, *key) for key in runnable}
     reference = generator["onnxruntime fp32"]
+    import openvino
+
     h, w = photo_rgb.shape[:2]
     out = (
+        f"\nOpenVINO {openvino.__version__} sees this CPU offer {', '.join(openvino_capabilities())}.\n"
         f"\nEngines for {card.name} {card.version} on this CPU: the generator at {w}x{h} (one row after another), "
         f"HTTP /depth through a service on that engine, and δ1 on the 7-Scenes test split (every 5th frame of "
         f"850-999) as `evaluate --engine --precision` scores it:\n\n"

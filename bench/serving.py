@@ -8,8 +8,7 @@ one run on one machine, so the ratios between rows are what to read. The backend
 table runs every published version of the default model on each backend
 (ONNX Runtime, TorchScript, eager PyTorch), with its ratio to the fastest. Open3D
 is optional (``pip install -e '.[bench]'``, and on Debian ``apt-get install
-libusb-1.0-0``); without it that row is skipped. Every table but the engines' runs ONNX Runtime fp32,
-the reference; ``--engines`` adds (or alone prints) each engine and precision this CPU runs, and ``auto``.
+libusb-1.0-0``); without it that row is skipped. All but the engine rows run ONNX Runtime fp32.
 """
 
 from __future__ import annotations
@@ -53,14 +52,11 @@ DEFAULT_IMAGE = REPO.parent / "shared/data/7scenes-redkitchen/frame-000900.color
 
 def machine() -> str:
     import onnxruntime
-    import openvino
-
-    from contract.engines import openvino_capabilities
 
     flags = ", ".join(sorted(set(SPEED_FLAGS) & cpu_flags())) or "none"
     return (
-        f"{cpu_description()} (int8 and bf16 flags: {flags}; OpenVINO sees {', '.join(openvino_capabilities())}), "
-        f"Python {platform.python_version()}, ONNX Runtime {onnxruntime.__version__}, OpenVINO {openvino.__version__}"
+        f"{cpu_description()} (int8 and bf16 flags: {flags}), Python {platform.python_version()}, "
+        f"ONNX Runtime {onnxruntime.__version__}"
     )
 
 
