@@ -13,6 +13,7 @@ from app.catalog import ModelCatalog
 from app.loading import ModelLoadError
 from app.main import create_app
 from app.settings import Settings
+from app.stream import STREAM_TRANSPORT_FACTOR
 
 log = logging.getLogger("rgb2cloud")
 
@@ -40,7 +41,18 @@ def main() -> None:
     except ModelLoadError as e:
         log.critical("cannot start: %s", e)
         sys.exit(1)
-    uvicorn.run(create_app(settings, catalog), host=settings.host, port=settings.port, log_level="info")
+    uvicorn.run(
+        create_app(settings, catalog),
+        host=settings.host,
+        port=settings.port,
+        log_level="info",
+        # A stream frame up to this size is read and, if over the stream's own limit, answered with an error
+        # of its own; only beyond it does the WebSocket layer close the stream (1009).
+        ws_max_size=STREAM_TRANSPORT_FACTOR * settings.stream_max_frame_bytes,
+        # Frames are JPEG or PNG and answers PNG or raw depth: deflating them again costs both ends more
+        # time than it saves on a network.
+        ws_per_message_deflate=False,
+    )
 
 
 if __name__ == "__main__":

@@ -21,6 +21,8 @@ from app.observability import MetricsMiddleware, ServiceMetrics
 from app.pool import InferencePool, Overloaded
 from app.routes import WEB_DIR, router
 from app.settings import Settings
+from app.stream import OpenStreams
+from app.stream import router as stream_router
 
 log = logging.getLogger("rgb2cloud")
 EXPOSED_HEADERS = [
@@ -73,6 +75,7 @@ def create_app(settings: Settings | None = None, catalog: ModelCatalog | None = 
     app.state.metrics = metrics
     app.state.catalog = catalog
     app.state.pool = InferencePool(settings.workers, settings.max_queue, metrics.pool_changed)
+    app.state.streams = OpenStreams(settings.max_streams, metrics)
 
     @app.exception_handler(BadImage)
     async def bad_image(_: Request, error: BadImage) -> JSONResponse:
@@ -95,6 +98,7 @@ def create_app(settings: Settings | None = None, catalog: ModelCatalog | None = 
         )
 
     app.include_router(router)
+    app.include_router(stream_router)
     app.mount("/web", StaticFiles(directory=WEB_DIR), name="web")
     # The last added is the outermost: CORS wraps everything, so browsers can read even a 413.
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)

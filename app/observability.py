@@ -47,6 +47,14 @@ class ServiceMetrics:
         ProcessCollector(registry=self.registry)
         self.in_flight = Gauge("rgb2cloud_inference_in_flight", "images being inferred now", registry=self.registry)
         self.queued = Gauge("rgb2cloud_inference_queued", "images waiting for the pool", registry=self.registry)
+        self.streams_open = Gauge("rgb2cloud_streams_open", "WebSocket streams open now", registry=self.registry)
+        self.stream_frames = Counter(
+            "rgb2cloud_stream_frames",
+            "stream messages by outcome: frames received, answered, skipped (a newer frame replaced them while "
+            "they waited), refused (an error of their own); bad_message: a text message that changed nothing",
+            ["outcome"],
+            registry=self.registry,
+        )
 
     def models_changed(self, catalog: ModelCatalog) -> None:
         loaded = catalog.loaded()

@@ -9,7 +9,7 @@ from typing import Literal
 import numpy as np
 
 from app.camera import CameraQuery, PhotoCamera, photo_camera
-from app.imaging import decode_image, encode_colormap_png, encode_depth_png
+from app.imaging import decode_image, depth_millimetres, encode_colormap_png, encode_depth_png
 from app.loading import LoadedModel
 from app.ply import encode_ply
 from contract.geometry import Intrinsics, point_cloud
@@ -86,7 +86,7 @@ class Inferred:
 def _photo_and_depth(
     model: LoadedModel, data: bytes, settings: RequestSettings, query: CameraQuery, watch: Stopwatch
 ) -> Inferred:
-    photo = decode_image(data, settings.max_pixels)
+    photo = decode_image(data, settings.max_pixels, settings.subject)
     watch.lap("decode")
     height, width = photo.rgb.shape[:2]
     camera = photo_camera(model.card.camera, width, height, query, photo.exif_focal)
@@ -103,6 +103,8 @@ class RequestSettings:
     max_pixels: int
     inference_max_pixels: int
     precision: RunPrecision | Literal["auto"] = "auto"
+    #: What the image is called in errors: the upload's form field, or a stream's frame.
+    subject: str = "the 'image' field"
 
 
 def depth_png(model: LoadedModel, data: bytes, settings: RequestSettings, query: CameraQuery, colormap: bool) -> Result:
@@ -142,3 +144,69 @@ def point_cloud_ply(
     watch.lap("encode")
     headers = inferred.headers(model) | {"X-Point-Count": str(len(points))}
     return Result(body, headers, watch.stages)
+
+
+@dataclass(frozen=True)
+class FrameOptions:
+    """What a stream asks of each frame: which outputs, in which encodings, and the point cloud's bounds."""
+
+    output: Literal["depth", "pointcloud", "both"]
+    depth_encoding: Literal["png16", "raw16"]
+    cloud_encoding: Literal["ply", "raw"]
+    cloud: CloudOptions
+
+
+@dataclass
+class StreamFrame:
+    """One stream frame's answer: its payloads in order, each ``(kind, encoding, bytes)``, and the facts
+    its header reports (``Inferred.headers``, the point count) with the seconds each stage took."""
+
+    payloads: list[tuple[str, str, bytes]]
+    headers: dict[str, str]
+    camera: PhotoCamera
+    stages: dict[str, float]
+    points: int | None
+
+
+def raw_cloud(points: np.ndarray) -> bytes:
+    """The raw point cloud: every point's float32 x, y, z (little-endian), then every point's uint8 r, g, b.
+
+    Two blocks rather than PLY's interleaved records, so a browser views them as a ``Float32Array`` and a
+    ``Uint8Array`` without copying (the first block is 12 bytes a point, so the second stays aligned).
+    """
+    xyz = np.stack([points["x"], points["y"], points["z"]], axis=1).astype("<f4", copy=False)
+    rgb = np.stack([points["red"], points["green"], points["blue"]], axis=1)
+    return xyz.tobytes() + rgb.tobytes()
+
+
+def stream_frame(
+    model: LoadedModel, data: bytes, settings: RequestSettings, query: CameraQuery, options: FrameOptions
+) -> StreamFrame:
+    """One frame of a stream (``app.stream``): the depth and point cloud of ``/depth`` and ``/pointcloud``
+    from one inference, in the encodings the stream asked for."""
+    watch = Stopwatch()
+    inferred = _photo_and_depth(model, data, settings, query, watch)
+    payloads: list[tuple[str, str, bytes]] = []
+    count = None
+    if options.output in ("depth", "both"):
+        if options.depth_encoding == "png16":
+            payloads.append(("depth", "png16", encode_depth_png(inferred.depth)))
+        else:
+            payloads.append(("depth", "raw16", depth_millimetres(inferred.depth).tobytes()))
+        watch.lap("encode")
+    if options.output in ("pointcloud", "both"):
+        bounds = options.cloud
+        points = point_cloud(
+            inferred.depth,
+            inferred.rgb,
+            inferred.camera.intrinsics,
+            stride=bounds.stride,
+            min_depth=bounds.min_depth,
+            max_depth=bounds.max_depth,
+        )
+        watch.lap("backproject")
+        count = len(points)
+        body = encode_ply(points) if options.cloud_encoding == "ply" else raw_cloud(points)
+        payloads.append(("pointcloud", options.cloud_encoding, body))
+        watch.lap("encode_cloud")
+    return StreamFrame(payloads, inferred.headers(model), inferred.camera, watch.stages, count)

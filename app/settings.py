@@ -100,7 +100,19 @@ class Settings(BaseSettings):
     )
     max_queue: int = Field(8, ge=0, description="requests waiting for inference beyond this get 503")
     retry_after_s: int = Field(1, ge=0, description="Retry-After on 503")
-    cors_origins: list[str] = Field(default_factory=list, description="allowed browser origins; none by default")
+    cors_origins: list[str] = Field(
+        default_factory=list,
+        description="allowed browser origins, for HTTP (CORS) and for opening a stream (its Origin header); "
+        "none by default: only the service's own page",
+    )
+    max_streams: int = Field(4, ge=0, description="streams open at once; one more is closed with 1013")
+    stream_max_frame_bytes: int = Field(
+        8 * 1024 * 1024, ge=1, description="a larger stream frame gets an error of its own; the stream goes on"
+    )
+    stream_max_pixels: int = Field(
+        3840 * 2160, ge=1, description="a stream frame's decoded width x height limit (4K UHD by default)"
+    )
+    stream_idle_s: float = Field(30, gt=0, description="a stream that sends nothing for this long is closed (1001)")
 
     @model_validator(mode="after")
     def _coherent(self) -> Settings:

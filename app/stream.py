@@ -1,0 +1,341 @@
+"""``WebSocket /v1/stream``: a camera's frames in, depth and point clouds out, the latest frame first.
+
+A camera sends faster than a 2-core CPU infers, so a stream holds at most one frame waiting: a newer
+frame replaces it, and the next answer counts the frames skipped. A fast sender gets the freshest depth
+at the model's own rate instead of a delay that grows. Each frame is one job in the same inference pool
+as the POST routes, and a stream never has more than one there, so four busy streams queue a POST
+behind four jobs at most. The protocol is in docs/api.md.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
+from urllib.parse import urlsplit
+
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from starlette.concurrency import run_in_threadpool
+
+from app.camera import CameraQuery
+from app.catalog import ModelCatalog, RefusedModel, UnknownModel
+from app.deps import CENTRE_RANGE, FOCAL_RANGE, MODEL_REFERENCE
+from app.imaging import BadImage
+from app.loading import LoadedModel
+from app.observability import ServiceMetrics
+from app.pipeline import CloudOptions, FrameOptions, RequestSettings, StreamFrame, stream_frame
+from app.pool import InferencePool, Overloaded
+from app.settings import Settings
+from contract.runtime import RunPrecision
+
+log = logging.getLogger("rgb2cloud")
+router = APIRouter()
+#: The WebSocket layer reads frames up to this many times ``stream_max_frame_bytes``, so that a frame over
+#: the stream's limit gets an error of its own; a larger message closes the stream (1009).
+STREAM_TRANSPORT_FACTOR = 4
+#: Close codes (RFC 6455): the service is full (try again later), idle, a policy refused, a server fault.
+TRY_AGAIN_LATER, GOING_AWAY, POLICY, SERVER_ERROR = 1013, 1001, 1008, 1011
+
+Focal = Annotated[float | None, Field(**FOCAL_RANGE, allow_inf_nan=False)]
+Centre = Annotated[float | None, Field(**CENTRE_RANGE, allow_inf_nan=False)]
+
+
+class StreamOptions(BaseModel):
+    """A stream's options: the query string it opened with, changed by each JSON text message it sends.
+
+    The same names and ranges as the POST routes' query parameters, plus the outputs and encodings.
+    """
+
+    model_config = ConfigDict(extra="forbid", protected_namespaces=())
+
+    model: str | None = Field(None, max_length=200, pattern=MODEL_REFERENCE)
+    fx: Focal = None
+    fy: Focal = None
+    cx: Centre = None
+    cy: Centre = None
+    precision: RunPrecision | Literal["auto"] | None = None
+    output: Literal["depth", "pointcloud", "both"] = "depth"
+    #: png16: a 16-bit PNG in millimetres; raw16: width x height little-endian uint16 millimetres, cheaper.
+    depth_encoding: Literal["png16", "raw16"] = "png16"
+    #: ply: binary PLY; raw: float32 x, y, z of every point, then uint8 r, g, b of every point.
+    cloud_encoding: Literal["ply", "raw"] = "ply"
+    stride: int = Field(1, ge=1, le=64)
+    min_depth: float = Field(0.0, ge=0, allow_inf_nan=False)
+    max_depth: float = Field(100.0, gt=0, allow_inf_nan=False)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> StreamOptions:
+        if self.min_depth > self.max_depth:
+            raise ValueError(f"min_depth ({self.min_depth}) is greater than max_depth ({self.max_depth})")
+        return self
+
+    def frame(self) -> FrameOptions:
+        cloud = CloudOptions(self.stride, self.min_depth, self.max_depth)
+        return FrameOptions(self.output, self.depth_encoding, self.cloud_encoding, cloud)
+
+    def camera(self) -> CameraQuery:
+        return CameraQuery(self.fx, self.fy, self.cx, self.cy)
+
+
+class OptionsError(Exception):
+    """Options a stream cannot run with, and the status the POST routes would answer them with."""
+
+    def __init__(self, status: int, message: str):
+        super().__init__(message)
+        self.status = status
+        self.message = message
+
+
+def problems(error: ValidationError) -> str:
+    """pydantic's errors as one line: ``fx: Input should be greater than or equal to 0.01; ...``."""
+    parts = []
+    for item in error.errors():
+        where = ".".join(map(str, item["loc"]))
+        parts.append(f"{where}: {item['msg']}" if where else item["msg"].removeprefix("Value error, "))
+    return "; ".join(parts)
+
+
+def parse_options(values: dict[str, Any]) -> StreamOptions:
+    try:
+        return StreamOptions.model_validate(values)
+    except ValidationError as e:
+        raise OptionsError(422, problems(e)) from None
+
+
+async def resolve(
+    catalog: ModelCatalog, options: StreamOptions, settings: Settings
+) -> tuple[LoadedModel, RequestSettings]:
+    """The model the options name (loaded off the event loop) and the request settings each frame runs with."""
+    try:
+        model = await run_in_threadpool(catalog.get, options.model) if options.model else catalog.default
+    except (UnknownModel, RefusedModel) as e:
+        raise OptionsError(404 if isinstance(e, UnknownModel) else 409, e.message) from None
+    if model is None:
+        raise OptionsError(503, "the model is not loaded yet")
+    if options.precision is not None and options.precision in model.disagrees:
+        raise OptionsError(409, f"precision={options.precision}: {model.label}: {model.unserved[options.precision]}")
+    wanted = options.precision or settings.precision
+    return model, RequestSettings(settings.stream_max_pixels, settings.inference_max_pixels, wanted, "the frame")
+
+
+def origin_allowed(origin: str | None, host: str | None, allowed: list[str]) -> bool:
+    """Browsers apply no CORS to WebSockets, so the service does: a page may open a stream if it was served
+    by this service (its origin's host is the Host it connects to) or its origin is one the CORS setting
+    allows. Clients that are not browsers send no Origin and are not asked."""
+    if origin is None:
+        return True
+    if "*" in allowed or origin in allowed:
+        return True
+    return host is not None and urlsplit(origin).netloc.lower() == host.lower()
+
+
+@dataclass
+class Frame:
+    seq: int
+    data: bytes
+    received: float
+
+
+class Mailbox:
+    """The one frame a stream holds waiting: a newer frame replaces it, and the replaced one is counted."""
+
+    def __init__(self) -> None:
+        self._frame: Frame | None = None
+        self._ready = asyncio.Event()
+        self.skipped = 0
+
+    def put(self, frame: Frame) -> bool:
+        """Leave ``frame`` to be answered next; True if it replaced one that now never will be."""
+        replaced = self._frame is not None
+        self.skipped += replaced
+        self._frame = frame
+        self._ready.set()
+        return replaced
+
+    async def take(self) -> Frame:
+        await self._ready.wait()
+        self._ready.clear()
+        frame, self._frame = self._frame, None
+        assert frame is not None
+        return frame
+
+
+class OpenStreams:
+    """How many streams are open, against ``max_streams``."""
+
+    def __init__(self, limit: int, metrics: ServiceMetrics):
+        self.limit = limit
+        self.count = 0
+        self._metrics = metrics
+
+    def try_open(self) -> bool:
+        if self.count >= self.limit:
+            return False
+        self.count += 1
+        self._metrics.streams_open.set(self.count)
+        return True
+
+    def close(self) -> None:
+        self.count -= 1
+        self._metrics.streams_open.set(self.count)
+
+
+class Stream:
+    """One open stream: its options, its mailbox, and the two loops that read frames and answer them."""
+
+    def __init__(self, socket: WebSocket, options: StreamOptions, model: LoadedModel, request: RequestSettings):
+        state = socket.app.state
+        self.socket = socket
+        self.settings: Settings = state.settings
+        self.catalog: ModelCatalog = state.catalog
+        self.pool: InferencePool = state.pool
+        self.metrics: ServiceMetrics = state.metrics
+        self.options, self.model, self.request = options, model, request
+        self.mailbox = Mailbox()
+        self._send_lock = asyncio.Lock()
+
+    async def send(self, header: dict[str, Any], payloads: Sequence[bytes] = ()) -> None:
+        """A JSON header and the binary messages it announces, never interleaved with another answer."""
+        async with self._send_lock:
+            await self.socket.send_text(json.dumps(header))
+            for payload in payloads:
+                await self.socket.send_bytes(payload)
+
+    async def refuse(self, status: int, detail: str, seq: int | None = None) -> None:
+        self.metrics.stream_frames.labels("refused" if seq is not None else "bad_message").inc()
+        await self.send({"type": "error", "seq": seq, "status": status, "detail": detail})
+
+    async def read(self) -> str:
+        """Read until the client leaves or idles; returns why the stream ends."""
+        seq = 0
+        limit = self.settings.stream_max_frame_bytes
+        while True:
+            try:
+                message = await asyncio.wait_for(self.socket.receive(), self.settings.stream_idle_s)
+            except TimeoutError:
+                return "idle"
+            if message["type"] == "websocket.disconnect":
+                return "left"
+            if message.get("bytes") is not None:
+                seq += 1
+                self.metrics.stream_frames.labels("received").inc()
+                data = message["bytes"]
+                if len(data) > limit:
+                    await self.refuse(413, f"frame is {len(data)} bytes; the limit is {limit}", seq)
+                elif self.mailbox.put(Frame(seq, data, time.perf_counter())):
+                    self.metrics.stream_frames.labels("skipped").inc()
+            elif message.get("text") is not None:
+                await self.change(message["text"])
+
+    async def change(self, text: str) -> None:
+        """A JSON object of options: merged into the stream's, checked, and acknowledged with the result."""
+        try:
+            change = json.loads(text)
+        except json.JSONDecodeError as e:
+            await self.refuse(400, f"a text message must be a JSON object of options: {e}")
+            return
+        if not isinstance(change, dict):
+            await self.refuse(400, f"a text message must be a JSON object of options, not {type(change).__name__}")
+            return
+        try:
+            options = parse_options(self.options.model_dump(exclude_unset=True) | change)
+            self.model, self.request = await resolve(self.catalog, options, self.settings)
+        except OptionsError as e:
+            await self.refuse(e.status, e.message)
+            return
+        self.options = options
+        await self.send({"type": "options", "options": options.model_dump(exclude_unset=True)})
+
+    async def answer(self) -> None:
+        """Answer the waiting frame, one at a time, for as long as the stream is open."""
+        while True:
+            frame = await self.mailbox.take()
+            model, options = self.model, self.options
+            started = time.perf_counter()
+            try:
+                result: StreamFrame = await self.pool.run(
+                    stream_frame, model, frame.data, self.request, options.camera(), options.frame()
+                )
+            except BadImage as e:
+                await self.refuse(e.status, e.message, frame.seq)
+                continue
+            except Overloaded:
+                await self.refuse(503, "busy: the inference queue is full; the next frame may get in", frame.seq)
+                continue
+            self.metrics.inference.labels(model.label).observe(result.stages["inference"])
+            await self.send(self.header(frame, result, started), [body for _, _, body in result.payloads])
+            self.metrics.stream_frames.labels("answered").inc()
+
+    def header(self, frame: Frame, result: StreamFrame, started: float) -> dict[str, Any]:
+        k = result.camera.intrinsics
+        height, width = k.height, k.width
+        payloads = []
+        for kind, encoding, body in result.payloads:
+            entry: dict[str, Any] = {"kind": kind, "encoding": encoding, "bytes": len(body)}
+            entry |= {"width": width, "height": height} if kind == "depth" else {"points": result.points}
+            payloads.append(entry)
+        headers = result.headers
+        return {
+            "type": "frame",
+            "seq": frame.seq,
+            "skipped": self.mailbox.skipped,
+            "model": headers["X-Model-Name"],
+            "version": headers["X-Model-Version"],
+            "precision": headers["X-Precision"],
+            "engine": headers["X-Engine"],
+            "precision_fallback": headers.get("X-Precision-Fallback"),
+            "intrinsics": {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": width, "height": height},
+            "intrinsics_source": result.camera.source,
+            "focal_ratio": float(headers["X-Focal-Ratio"]),
+            "queued_ms": round((started - frame.received) * 1000, 2),
+            "stages_ms": {name: round(seconds * 1000, 2) for name, seconds in result.stages.items()},
+            "payloads": payloads,
+        }
+
+    async def run(self) -> None:
+        reader = asyncio.create_task(self.read())
+        answerer = asyncio.create_task(self.answer())
+        done, _ = await asyncio.wait({reader, answerer}, return_when=asyncio.FIRST_COMPLETED)
+        answerer.cancel()
+        reader.cancel()
+        await asyncio.gather(reader, answerer, return_exceptions=True)
+        if answerer in done and isinstance(answerer.exception(), WebSocketDisconnect | OSError):
+            return  # the client left while its answer was being sent
+        if answerer in done:
+            log.error("stream failed", exc_info=answerer.exception())
+            await self.socket.close(SERVER_ERROR, "the service failed to answer a frame")
+        elif reader.exception() is None and reader.result() == "idle":
+            await self.socket.close(GOING_AWAY, f"idle: no message for {self.settings.stream_idle_s:g} s")
+
+
+@router.websocket("/v1/stream")
+async def stream(socket: WebSocket) -> None:
+    """Frames in as binary messages, a JSON header and the payloads it lists out for each (docs/api.md)."""
+    state = socket.app.state
+    settings: Settings = state.settings
+    if not origin_allowed(socket.headers.get("origin"), socket.headers.get("host"), settings.cors_origins):
+        await socket.close(POLICY, "this origin may not open a stream (RGB2CLOUD_CORS_ORIGINS)")
+        return  # closed before accepting: the browser's handshake fails with 403
+    streams: OpenStreams = state.streams
+    await socket.accept()
+    if not streams.try_open():
+        await socket.close(TRY_AGAIN_LATER, f"busy: {streams.limit} streams are open, the most this service takes")
+        return
+    try:
+        try:
+            options = parse_options(dict(socket.query_params))
+            model, request = await resolve(state.catalog, options, settings)
+        except OptionsError as e:
+            await socket.send_text(json.dumps({"type": "error", "seq": None, "status": e.status, "detail": e.message}))
+            await socket.close(POLICY, e.message[:120])
+            return
+        await Stream(socket, options, model, request).run()
+    except WebSocketDisconnect:
+        pass
+    finally:
+        streams.close()

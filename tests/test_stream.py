@@ -1,0 +1,297 @@
+"""``WebSocket /v1/stream`` against the real service under uvicorn, with the ``websockets`` client.
+
+The bundled default runs on real 7-Scenes frames (640x480 JPEGs), so a frame takes the time a user's
+would. Depth and clouds that come over the stream are checked against what the POST routes return for
+the same photo: the PNG decoded by Pillow, the PLY read by plyfile.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import socket
+import statistics
+import threading
+import time
+
+import httpx
+import numpy as np
+import pytest
+from conftest import SEVEN_SCENES
+from PIL import Image
+from plyfile import PlyData
+from websockets.exceptions import ConnectionClosed, InvalidStatus
+
+from harness.service import BUNDLED_REGISTRY, running_service
+from harness.streaming import open_stream, raw_depth, raw_points, receive
+
+pytestmark = pytest.mark.slow
+
+ALLOWED_ORIGIN = "https://viewer.example"
+MAX_STREAMS = 4
+IDLE_S = 4
+FRAME_LIMIT = 200_000
+FRAMES = [(SEVEN_SCENES / f"frame-{n:06d}.color.jpg").read_bytes() for n in range(850, 860)]
+
+
+@pytest.fixture(scope="module")
+def service():
+    with running_service(
+        bundled_registry=BUNDLED_REGISTRY,
+        model="rgb2cloud-7scenes",
+        threads="2",
+        engine="onnxruntime",
+        max_streams=str(MAX_STREAMS),
+        stream_idle_s=str(IDLE_S),
+        stream_max_frame_bytes=str(FRAME_LIMIT),
+        cors_origins=json.dumps([ALLOWED_ORIGIN]),
+    ) as running:
+        yield running.url
+
+
+def metric(url: str, name: str) -> float:
+    """One sample of the service's /metrics, by its full name with labels; 0 where it is absent."""
+    for line in httpx.get(f"{url}/metrics", timeout=5).text.splitlines():
+        if line.startswith(name + " "):
+            return float(line.split()[-1])
+    return 0.0
+
+
+def wait_streams_closed(url: str) -> None:
+    deadline = time.monotonic() + 10
+    while metric(url, "rgb2cloud_streams_open") > 0:
+        assert time.monotonic() < deadline, "a stream stayed counted as open after its client left"
+        time.sleep(0.1)
+
+
+def post(url: str, route: str, data: bytes, **params) -> httpx.Response:
+    response = httpx.post(f"{url}{route}", files={"image": ("frame.jpg", data)}, params=params, timeout=60)
+    assert response.status_code == 200, response.text
+    return response
+
+
+def test_each_frame_gets_the_depth_and_cloud_the_post_routes_give(service):
+    with open_stream(service, output="both", depth_encoding="raw16", cloud_encoding="raw", stride=4) as ws:
+        ws.send(FRAMES[0])
+        header, (depth_body, cloud_body) = receive(ws)
+    assert header["type"] == "frame" and header["seq"] == 1 and header["skipped"] == 0
+    assert (header["model"], header["version"]) == ("rgb2cloud-7scenes", "0.9.0")
+    assert header["intrinsics_source"] == "model" and header["engine"] == "onnxruntime"
+    assert {"decode", "inference", "encode", "backproject"} <= set(header["stages_ms"])
+    depth_entry, cloud_entry = header["payloads"]
+    assert depth_entry == {"kind": "depth", "encoding": "raw16", "bytes": 640 * 480 * 2, "width": 640, "height": 480}
+    assert cloud_entry["kind"] == "pointcloud" and cloud_entry["bytes"] == 15 * cloud_entry["points"]
+
+    posted = post(service, "/depth", FRAMES[0])
+    posted_mm = np.asarray(Image.open(io.BytesIO(posted.content)), dtype=np.float64) / 1000
+    np.testing.assert_array_equal(raw_depth(depth_entry, depth_body), posted_mm)
+    k = header["intrinsics"]
+    assert posted.headers["x-intrinsics"] == ",".join(f"{k[a]:.4f}" for a in ("fx", "fy", "cx", "cy"))
+
+    ply = PlyData.read(io.BytesIO(post(service, "/pointcloud", FRAMES[0], stride=4).content))["vertex"]
+    xyz, rgb = raw_points(cloud_entry, cloud_body)
+    assert len(xyz) == ply.count > 10_000
+    np.testing.assert_array_equal(xyz, np.stack([ply["x"], ply["y"], ply["z"]], axis=1))
+    np.testing.assert_array_equal(rgb, np.stack([ply["red"], ply["green"], ply["blue"]], axis=1))
+
+
+def test_png_and_ply_payloads_and_options_changed_mid_stream(service):
+    with open_stream(service, output="depth", fx=600) as ws:
+        ws.send(FRAMES[1])
+        header, (png,) = receive(ws)
+        assert header["intrinsics_source"] == "query" and header["intrinsics"]["fx"] == 600
+        with Image.open(io.BytesIO(png)) as im:
+            assert im.mode in ("I;16", "I") and im.size == (640, 480)
+            assert np.count_nonzero(np.asarray(im)) > 0.9 * 640 * 480
+
+        ws.send(json.dumps({"output": "pointcloud", "stride": 8, "max_depth": 2.0}))
+        ack, _ = receive(ws)
+        assert ack == {
+            "type": "options",
+            "options": {"fx": 600.0, "output": "pointcloud", "stride": 8, "max_depth": 2.0},
+        }
+        ws.send(FRAMES[1])
+        header, (ply_bytes,) = receive(ws)
+        vertex = PlyData.read(io.BytesIO(ply_bytes))["vertex"]
+        assert header["payloads"][0]["points"] == vertex.count > 0 and vertex["z"].max() <= 2.0
+
+        for bad, status, says in [
+            ("{not json", 400, "JSON object"),
+            ("[1, 2]", 400, "not list"),
+            (json.dumps({"fx": -1}), 422, "fx: Input should be greater than or equal to 0.01"),
+            (json.dumps({"min_depth": 3, "max_depth": 2}), 422, "min_depth (3.0) is greater than max_depth"),
+            (json.dumps({"colour": "red"}), 422, "colour: Extra inputs are not permitted"),
+            (json.dumps({"model": "nope"}), 404, "nope"),
+        ]:
+            ws.send(bad)
+            error, _ = receive(ws)
+            assert error["type"] == "error" and error["seq"] is None and error["status"] == status, error
+            assert says in error["detail"], error
+        ws.send(FRAMES[1])  # the options before the bad messages still hold
+        header, (ply_bytes,) = receive(ws)
+        assert header["seq"] == 3 and header["payloads"][0]["kind"] == "pointcloud"
+
+
+def test_bad_options_at_open_get_an_error_then_a_policy_close(service):
+    with open_stream(service, stride=0) as ws:
+        error, _ = receive(ws)
+        assert error["status"] == 422 and "stride" in error["detail"]
+        with pytest.raises(ConnectionClosed) as closed:
+            ws.recv(timeout=10)
+    assert closed.value.rcvd.code == 1008
+
+
+def test_a_bad_frame_mid_stream_gets_its_own_error_and_the_stream_goes_on(service):
+    truncated = FRAMES[2][: len(FRAMES[2]) // 2]
+    with open_stream(service) as ws:
+        for seq, frame in enumerate([FRAMES[2], b"not an image", truncated, b"", b"\xff" * (FRAME_LIMIT + 1)], 1):
+            ws.send(frame)
+            header, payloads = receive(ws)
+            if seq == 1:
+                assert header["type"] == "frame" and len(payloads) == 1
+                continue
+            assert header["type"] == "error" and header["seq"] == seq, header
+            assert header["status"] == {2: 415, 3: 400, 4: 400, 5: 413}[seq], header
+            assert header["detail"] and ("the frame" in header["detail"] or seq in (3, 5)), header
+        ws.send(FRAMES[3])
+        header, _ = receive(ws)
+        assert header["type"] == "frame" and header["seq"] == 6
+
+
+def test_the_latest_frame_wins_and_latency_stays_flat(service):
+    """100 frames sent as fast as the socket takes them: the service answers the freshest it holds each
+    time, so it skips frames, and no answer waits longer than about two frames' work."""
+    sent: dict[int, float] = {}
+    answers: list[tuple[dict, float]] = []
+    with open_stream(service, depth_encoding="raw16") as ws:
+
+        def read() -> None:
+            while True:
+                header, _ = receive(ws)
+                answers.append((header, time.perf_counter()))
+                if header["seq"] == 100:
+                    return
+
+        reader = threading.Thread(target=read)
+        reader.start()
+        for seq in range(1, 101):
+            sent[seq] = time.perf_counter()
+            ws.send(FRAMES[seq % len(FRAMES)])
+        reader.join(timeout=120)
+    assert not reader.is_alive(), "the answer to the last frame never came"
+    seqs = [header["seq"] for header, _ in answers]
+    assert all(header["type"] == "frame" for header, _ in answers)
+    assert seqs == sorted(seqs) and seqs[-1] == 100 and len(seqs) < 50, seqs
+    final = answers[-1][0]
+    assert final["skipped"] == 100 - len(seqs), "every frame is either answered or counted as skipped"
+    work_ms = statistics.median(sum(h["stages_ms"].values()) for h, _ in answers)
+    latencies = [(at - sent[h["seq"]]) * 1000 for h, at in answers]
+    assert max(h["queued_ms"] for h, _ in answers) < 3 * work_ms
+    assert max(latencies) < 4 * work_ms, (latencies, work_ms)
+    text = httpx.get(f"{service}/metrics", timeout=5).text
+    assert 'rgb2cloud_stream_frames_total{outcome="skipped"}' in text
+
+
+def test_a_full_service_closes_a_new_stream_with_1013(service):
+    wait_streams_closed(service)
+    streams = [open_stream(service) for _ in range(MAX_STREAMS)]
+    try:
+        extra = open_stream(service)
+        with pytest.raises(ConnectionClosed) as closed:
+            extra.recv(timeout=10)
+        assert closed.value.rcvd.code == 1013 and "4 streams are open" in closed.value.rcvd.reason
+        assert metric(service, "rgb2cloud_streams_open") == MAX_STREAMS
+    finally:
+        for ws in streams:
+            ws.close()
+    wait_streams_closed(service)
+    with open_stream(service) as ws:  # room again
+        ws.send(FRAMES[0])
+        assert receive(ws)[0]["type"] == "frame"
+
+
+def test_an_idle_stream_is_closed(service):
+    with open_stream(service) as ws:
+        started = time.monotonic()
+        with pytest.raises(ConnectionClosed) as closed:
+            ws.recv(timeout=IDLE_S + 10)
+    assert closed.value.rcvd.code == 1001 and "idle" in closed.value.rcvd.reason
+    assert IDLE_S - 0.5 <= time.monotonic() - started < IDLE_S + 5
+
+
+def handshake(url: str) -> socket.socket:
+    """A raw TCP WebSocket handshake, so a test can send half a frame and vanish."""
+    host, port = url.removeprefix("http://").split(":")
+    raw = socket.create_connection((host, int(port)), timeout=10)
+    raw.sendall(
+        f"GET /v1/stream HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+        "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n".encode()
+    )
+    assert raw.recv(4096).startswith(b"HTTP/1.1 101")
+    return raw
+
+
+def test_a_client_that_vanishes_mid_frame_leaves_the_service_healthy(service):
+    wait_streams_closed(service)
+    raw = handshake(service)
+    # A masked binary frame that announces 40,000 bytes, of which 1,000 arrive.
+    raw.sendall(bytes([0x82, 0xFE]) + (40_000).to_bytes(2, "big") + b"\0\0\0\0" + FRAMES[0][:1000])
+    raw.close()
+    with open_stream(service) as ws:  # and one that leaves while its frame is being inferred
+        ws.send(FRAMES[0])
+    wait_streams_closed(service)
+    assert httpx.get(f"{service}/readyz", timeout=5).status_code == 200
+    post(service, "/depth", FRAMES[0])
+    with open_stream(service) as ws:
+        ws.send(FRAMES[1])
+        assert receive(ws)[0]["seq"] == 1
+
+
+def test_a_post_is_answered_while_four_streams_are_busy(service):
+    wait_streams_closed(service)
+    stop = threading.Event()
+    answered = [0] * MAX_STREAMS
+
+    def busy(index: int) -> None:
+        with open_stream(service, depth_encoding="raw16") as ws:
+            while not stop.is_set():
+                ws.send(FRAMES[index])
+                receive(ws)
+                answered[index] += 1
+
+    threads = [threading.Thread(target=busy, args=(i,)) for i in range(MAX_STREAMS)]
+    for thread in threads:
+        thread.start()
+    try:
+        time.sleep(1.0)
+        before = list(answered)
+        started = time.perf_counter()
+        response = post(service, "/depth", FRAMES[5])
+        waited = time.perf_counter() - started
+        with Image.open(io.BytesIO(response.content)) as im:
+            assert im.size == (640, 480)
+        after = list(answered)
+    finally:
+        stop.set()
+        for thread in threads:
+            thread.join(timeout=60)
+    assert all(b > 0 for b in before), "every stream was answered before the POST"
+    # The POST waited behind at most one job per stream, as each stream holds at most one in the pool.
+    frames_meanwhile = sum(a - b for a, b in zip(after, before, strict=True))
+    assert frames_meanwhile <= 2 * MAX_STREAMS, (frames_meanwhile, waited)
+
+
+@pytest.mark.parametrize(
+    ("origin", "opens"),
+    [(None, True), (ALLOWED_ORIGIN, True), ("SAME", True), ("https://evil.example", False), ("null", False)],
+)
+def test_a_page_from_an_origin_cors_does_not_allow_cannot_open_a_stream(service, origin, opens):
+    origin = service if origin == "SAME" else origin  # the service's own page
+    if not opens:
+        with pytest.raises(InvalidStatus) as refused:
+            open_stream(service, origin=origin)
+        assert refused.value.response.status_code == 403
+        return
+    with open_stream(service, origin=origin) as ws:
+        ws.send(FRAMES[0])
+        assert receive(ws)[0]["type"] == "frame"
