@@ -12,6 +12,7 @@ from app.camera import CameraQuery, PhotoCamera, photo_camera
 from app.imaging import decode_image, depth_millimetres, encode_colormap_png, encode_depth_png
 from app.loading import LoadedModel
 from app.ply import encode_ply
+from app.temporal import TemporalFilter
 from contract.geometry import Intrinsics, point_cloud
 from contract.resample import depth_at_photo
 from contract.runtime import RunPrecision
@@ -180,12 +181,20 @@ def raw_cloud(points: np.ndarray) -> bytes:
 
 
 def stream_frame(
-    model: LoadedModel, data: bytes, settings: RequestSettings, query: CameraQuery, options: FrameOptions
+    model: LoadedModel,
+    data: bytes,
+    settings: RequestSettings,
+    query: CameraQuery,
+    options: FrameOptions,
+    smoother: TemporalFilter | None,
 ) -> StreamFrame:
     """One frame of a stream (``app.stream``): the depth and point cloud of ``/depth`` and ``/pointcloud``
-    from one inference, in the encodings the stream asked for."""
+    from one inference, in the encodings the stream asked for, through the stream's temporal filter if any."""
     watch = Stopwatch()
     inferred = _photo_and_depth(model, data, settings, query, watch)
+    if smoother is not None:
+        inferred.depth = smoother.apply(inferred.depth)
+        watch.lap("smooth")
     payloads: list[tuple[str, str, bytes]] = []
     count = None
     if options.output in ("depth", "both"):

@@ -31,6 +31,7 @@ from app.observability import ServiceMetrics
 from app.pipeline import CloudOptions, FrameOptions, RequestSettings, StreamFrame, stream_frame
 from app.pool import InferencePool, Overloaded
 from app.settings import Settings
+from app.temporal import TemporalFilter
 from contract.runtime import RunPrecision
 
 log = logging.getLogger("rgb2cloud")
@@ -67,6 +68,8 @@ class StreamOptions(BaseModel):
     stride: int = Field(1, ge=1, le=64)
     min_depth: float = Field(0.0, ge=0, allow_inf_nan=False)
     max_depth: float = Field(100.0, gt=0, allow_inf_nan=False)
+    #: temporal: each pixel blended with the last frame's where they agree (``app.temporal``); off by default.
+    smooth: Literal["off", "temporal"] = "off"
 
     @model_validator(mode="after")
     def _ordered(self) -> StreamOptions:
@@ -197,7 +200,11 @@ class Stream:
         self.metrics: ServiceMetrics = state.metrics
         self.options, self.model, self.request = options, model, request
         self.mailbox = Mailbox()
+        self.smoother = self._smoother()
         self._send_lock = asyncio.Lock()
+
+    def _smoother(self) -> TemporalFilter | None:
+        return TemporalFilter() if self.options.smooth == "temporal" else None
 
     async def send(self, header: dict[str, Any], payloads: Sequence[bytes] = ()) -> None:
         """A JSON header and the binary messages it announces, never interleaved with another answer."""
@@ -249,6 +256,7 @@ class Stream:
             await self.refuse(e.status, e.message)
             return
         self.options = options
+        self.smoother = self._smoother()  # another model or camera: what came before is no guide
         await self.send({"type": "options", "options": options.model_dump(exclude_unset=True)})
 
     async def answer(self) -> None:
@@ -259,7 +267,7 @@ class Stream:
             started = time.perf_counter()
             try:
                 result: StreamFrame = await self.pool.run(
-                    stream_frame, model, frame.data, self.request, options.camera(), options.frame()
+                    stream_frame, model, frame.data, self.request, options.camera(), options.frame(), self.smoother
                 )
             except BadImage as e:
                 await self.refuse(e.status, e.message, frame.seq)

@@ -295,3 +295,25 @@ def test_a_page_from_an_origin_cors_does_not_allow_cannot_open_a_stream(service,
     with open_stream(service, origin=origin) as ws:
         ws.send(FRAMES[0])
         assert receive(ws)[0]["type"] == "frame"
+
+
+def test_smooth_temporal_blends_each_frame_with_the_last_where_they_agree(service):
+    def posted_m(frame: bytes) -> np.ndarray:
+        return np.asarray(Image.open(io.BytesIO(post(service, "/depth", frame).content)), dtype=np.float64) / 1000
+
+    first, second = posted_m(FRAMES[0]), posted_m(FRAMES[4])
+    with open_stream(service, depth_encoding="raw16", smooth="temporal") as ws:
+        answers = []
+        for frame in (FRAMES[0], FRAMES[4]):
+            ws.send(frame)
+            header, (body,) = receive(ws)
+            assert "smooth" in header["stages_ms"]
+            answers.append(raw_depth(header["payloads"][0], body))
+    np.testing.assert_array_equal(answers[0], first)
+    # By hand: 0.4 new + 0.6 old within 5%, else the new frame's depth (to the millimetre both come in).
+    agree = (first > 0) & (np.abs(second - first) <= 0.05 * first)
+    expected = np.where(agree, 0.4 * second + 0.6 * first, second)
+    # Pixels within 1.1 mm of the 5% edge may fall either side of it after the millimetre rounding.
+    clear = np.abs(np.abs(second - first) - 0.05 * first) > 0.0011
+    assert 0.2 < agree.mean() < 1.0 and clear.mean() > 0.95
+    assert np.abs(answers[1] - expected)[clear].max() <= 0.0015
