@@ -1,0 +1,254 @@
+"""Stream benchmark: live depth over ``/v1/stream`` against back-to-back POST /depth, in one run.
+
+    python bench/stream.py [--seconds 20] [--soak-frames 5000] [--threads 2]
+
+One service (the bundled default, ONNX Runtime fp32) on 127.0.0.1 answers every row; the client runs
+on the same machine. Frames are the 7-Scenes RedKitchen test frames 850-999, 640x480 JPEGs, cycled.
+"Camera" rows send at a camera's rate whatever the service does, as a webcam would; "lockstep" sends
+the next frame when the last is answered. Latency is from a frame's send to its answer's last byte.
+The per-frame work is the service's own decode + inference + encode (the stages each header reports).
+The flicker table plays frames 850-999 in order as a stream (``harness.flicker``, docs/quality.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import httpx
+import numpy as np
+from PIL import Image
+
+from contract.geometry import Intrinsics
+from harness.flicker import read_pose, sequence_flicker
+from harness.service import BUNDLED_REGISTRY, running_service, server_timing
+from harness.streaming import open_stream, raw_depth, receive
+from trainer.machine import cpu_description
+from trainer.metrics import MetricAccumulator
+
+SEVEN_SCENES = Path(__file__).resolve().parents[2] / "shared/data/7scenes-redkitchen"
+TEST_FRAMES = range(850, 1000)
+#: 7-Scenes' depth camera: the sensor's own depth is moved with it.
+KINECT_DEPTH = Intrinsics(fx=585.0, fy=585.0, cx=320.0, cy=240.0, width=640, height=480)
+
+
+@dataclass
+class Run:
+    """What one client saw: each answer's latency (ms) and the service's work for it (ms), over a span."""
+
+    latencies: list[float] = field(default_factory=list)
+    work: list[float] = field(default_factory=list)
+    inference: list[float] = field(default_factory=list)
+    sent: int = 0
+    seconds: float = 0.0
+
+    def add(self, latency_s: float, stages_ms: dict[str, float]) -> None:
+        self.latencies.append(latency_s * 1000)
+        self.work.append(sum(stages_ms.values()))
+        self.inference.append(stages_ms["inference"])
+
+    @property
+    def fps(self) -> float:
+        return len(self.latencies) / self.seconds
+
+    def percentile(self, q: float) -> float:
+        return float(np.percentile(self.latencies, q))
+
+
+def jpegs() -> list[bytes]:
+    return [(SEVEN_SCENES / f"frame-{n:06d}.color.jpg").read_bytes() for n in TEST_FRAMES]
+
+
+def posts(url: str, frames: list[bytes], seconds: float) -> Run:
+    """Back-to-back POST /depth on one connection, for ``seconds``."""
+    run = Run()
+    with httpx.Client(timeout=60) as client:
+        start = time.perf_counter()
+        while time.perf_counter() - start < seconds:
+            sent = time.perf_counter()
+            response = client.post(f"{url}/depth", files={"image": ("f.jpg", frames[run.sent % len(frames)])})
+            response.raise_for_status()
+            run.sent += 1
+            run.add(time.perf_counter() - sent, server_timing(response))
+        run.seconds = time.perf_counter() - start
+    return run
+
+
+def lockstep(url: str, frames: list[bytes], seconds: float, **options) -> Run:
+    """One stream that sends the next frame when the last is answered, for ``seconds``."""
+    run = Run()
+    with open_stream(url, **options) as ws:
+        start = time.perf_counter()
+        while time.perf_counter() - start < seconds:
+            sent = time.perf_counter()
+            ws.send(frames[run.sent % len(frames)])
+            run.sent += 1
+            header, _ = receive(ws)
+            run.add(time.perf_counter() - sent, header["stages_ms"])
+        run.seconds = time.perf_counter() - start
+    return run
+
+
+def camera(url: str, frames: list[bytes], fps: float, count: int, on_sent=None, **options) -> Run:
+    """One stream fed ``count`` frames at ``fps`` whatever the answers do, as a camera feeds it; the last
+    frame is always answered (the latest frame wins), so the run ends with its answer."""
+    run, sent_at = Run(), {}
+    with open_stream(url, **options) as ws:
+
+        def read() -> None:
+            while True:
+                header, _ = receive(ws)
+                if header["type"] == "frame":
+                    run.add(time.perf_counter() - sent_at[header["seq"]], header["stages_ms"])
+                if header["seq"] == count:
+                    return
+
+        reader = threading.Thread(target=read)
+        reader.start()
+        start = time.perf_counter()
+        for seq in range(1, count + 1):
+            time.sleep(max(0.0, start + (seq - 1) / fps - time.perf_counter()))
+            sent_at[seq] = time.perf_counter()
+            ws.send(frames[seq % len(frames)])
+            run.sent = seq
+            if on_sent is not None:
+                on_sent(seq)
+        reader.join()
+        run.seconds = time.perf_counter() - start
+    return run
+
+
+def cameras(url: str, frames: list[bytes], fps: float, count: int, streams: int) -> list[Run]:
+    """``streams`` cameras at once, each its own stream."""
+    runs: list[Run] = [Run()] * streams
+    threads = []
+    for i in range(streams):
+
+        def one(i: int = i) -> None:
+            runs[i] = camera(url, frames[i * 7 :] + frames[: i * 7], fps, count)
+
+        threads.append(threading.Thread(target=one))
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    return runs
+
+
+def rss_series(url: str, pid: int, frames: list[bytes], fps: float, count: int) -> tuple[list[float], Run]:
+    """The service's resident MB after every 500th of ``count`` frames sent at ``fps``."""
+    from harness.service import resident_mb
+
+    series: list[float] = []
+    every = max(1, count // 10)
+
+    def sample(seq: int) -> None:
+        if seq % every == 0:
+            series.append(resident_mb(pid))
+
+    return series, camera(url, frames, fps, count, on_sent=sample, depth_encoding="raw16")
+
+
+def sensor_depths() -> list[np.ndarray]:
+    depths = []
+    for n in TEST_FRAMES:
+        mm = np.asarray(Image.open(SEVEN_SCENES / f"frame-{n:06d}.depth.png"), dtype=np.float64)
+        depths.append(np.where(mm < 65535, mm / 1000, 0))
+    return depths
+
+
+def played(url: str, frames: list[bytes], smooth: str) -> tuple[list[np.ndarray], Intrinsics]:
+    """Frames 850-999 in order through one lockstep stream: each frame's depth, and the camera it reports."""
+    depths = []
+    with open_stream(url, depth_encoding="raw16", smooth=smooth) as ws:
+        for frame in frames:
+            ws.send(frame)
+            header, (body,) = receive(ws)
+            depths.append(raw_depth(header["payloads"][0], body))
+    return depths, Intrinsics(**header["intrinsics"])
+
+
+def flicker_rows(url: str, frames: list[bytes]) -> list[str]:
+    """Flicker and δ1 of the served depth, plain and smoothed, against the sensor's own flicker."""
+    poses = [read_pose(SEVEN_SCENES / f"frame-{n:06d}.pose.txt") for n in TEST_FRAMES]
+    sensor = sensor_depths()
+    floor = sequence_flicker(sensor, poses, KINECT_DEPTH)
+    rows = [f"| the sensor's own depth (the floor) | {floor.relative:.4f} | 1.00x | {floor.scale_jitter:.4f} | — |"]
+    for smooth in ("off", "temporal"):
+        depths, k = played(url, frames, smooth)
+        served = sequence_flicker(depths, poses, k)
+        scores = MetricAccumulator()
+        for depth, truth in zip(depths, sensor, strict=True):
+            scores.add(depth, truth, KINECT_DEPTH)
+        rows.append(
+            f"| served, smooth={smooth} | {served.relative:.4f} | {served.relative / floor.relative:.2f}x | "
+            f"{served.scale_jitter:.4f} | {scores.result()['delta1']:.4f} |"
+        )
+    return rows
+
+
+def speed_row(label: str, run: Run) -> str:
+    return (
+        f"| {label} | {run.fps:.1f} | {run.percentile(50):.0f} | {run.percentile(95):.0f} | "
+        f"{statistics.median(run.work):.0f} | {1 - len(run.latencies) / run.sent:.0%} |"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seconds", type=float, default=20, help="each speed row's length")
+    parser.add_argument("--fps", type=float, default=30, help="the camera rows' frame rate")
+    parser.add_argument("--soak-frames", type=int, default=5000, help="frames sent while RSS is watched")
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    frames = jpegs()
+    count = int(args.seconds * args.fps)
+    env = {"bundled_registry": BUNDLED_REGISTRY, "model": "rgb2cloud-7scenes", "engine": "onnxruntime"}
+    with running_service(threads=str(args.threads), precision="fp32", **env) as service:
+        url = service.url
+        lockstep(url, frames[:10], 2)  # warm
+        post_run = posts(url, frames, args.seconds)
+        step_run = lockstep(url, frames, args.seconds)
+        png_run = camera(url, frames, args.fps, count)
+        raw_run = camera(url, frames, args.fps, count, depth_encoding="raw16")
+        four = cameras(url, frames, args.fps, count, 4)
+        flicker = flicker_rows(url, frames)
+        rss, soak = rss_series(url, service.pid, frames, args.fps, args.soak_frames)
+    report(args, post_run, step_run, png_run, raw_run, four)
+    print(f"\nRSS MB every {args.soak_frames // 10} of {args.soak_frames} frames at {args.fps:g} fps")
+    print(f"({len(soak.latencies)} answered): {', '.join(f'{mb:.0f}' for mb in rss)}")
+    print("\n| depth, frames 850-999 as a stream | flicker (mean relative) | against the sensor | scale jitter | δ1 |")
+    print("|---|---|---|---|---|")
+    print("\n".join(flicker))
+
+
+def report(args: argparse.Namespace, post_run: Run, step_run: Run, png_run: Run, raw_run: Run, four: list[Run]):
+    """The speed table, and the issue's three ratios: stream against the work's rate, POST, and p95 / work."""
+    work = statistics.median(step_run.work)
+    generator = statistics.median(step_run.inference)
+    print(f"Machine: {cpu_description()}; service threads {args.threads}; frames 640x480 JPEG\n")
+    print("| client | answers/s | p50 ms | p95 ms | work ms (median) | frames skipped |")
+    print("|---|---|---|---|---|---|")
+    print(f"| the generator alone (its stage in the headers) | {1000 / generator:.1f} | | | {generator:.0f} | |")
+    print(f"| the per-frame work, 1 / (decode + inference + encode) | {1000 / work:.1f} | | | {work:.0f} | |")
+    print(speed_row("POST /depth back to back", post_run))
+    print(speed_row("stream, lockstep, png16", step_run))
+    print(speed_row(f"stream, camera at {args.fps:g} fps, png16", png_run))
+    print(speed_row(f"stream, camera at {args.fps:g} fps, raw16", raw_run))
+    merged = Run(sent=sum(r.sent for r in four))
+    for run in four:
+        merged.latencies += run.latencies
+        merged.work += run.work
+    merged.seconds = len(merged.latencies) / sum(run.fps for run in four)
+    print(speed_row(f"4 streams, each a camera at {args.fps:g} fps (answers/s: all four)", merged))
+    print(f"\nOne stream (camera, png16) against the per-frame work's rate: {png_run.fps / (1000 / work):.0%}; ")
+    print(f"against POST back to back: {png_run.fps / post_run.fps:.2f}x; ")
+    print(f"p95 against the per-frame work: {png_run.percentile(95) / work:.2f}x")
+
+
+if __name__ == "__main__":
+    main()
