@@ -32,17 +32,28 @@ class CloudViewer {
 
   // Positions (x, y, z floats) and colours (r, g, b bytes), one triple per point.
   setPoints(positions, colours) {
-    const gl = this.gl;
-    this.count = positions.length / 3;
-    gl.bindBuffer(gl.ARRAY_BUFFER, this.positionBuffer);
-    gl.bufferData(gl.ARRAY_BUFFER, positions, gl.STATIC_DRAW);
-    gl.bindBuffer(gl.ARRAY_BUFFER, this.colourBuffer);
-    gl.bufferData(gl.ARRAY_BUFFER, colours, gl.STATIC_DRAW);
+    this.#upload(positions, colours);
     // Orbit about the middle of the cloud; frame it from the camera's own position.
     const middle = [0, 1, 2].map((axis) => median(positions, axis));
     this.centre = middle;
     this.radius = Math.max(0.1, Math.hypot(...middle));
     this.reset();
+  }
+
+  // A live cloud's next frame: the points change, the view the user has orbited to stays.
+  updatePoints(positions, colours) {
+    if (!this.count) return this.setPoints(positions, colours);
+    this.#upload(positions, colours);
+    this.draw();
+  }
+
+  #upload(positions, colours) {
+    const gl = this.gl;
+    this.count = positions.length / 3;
+    gl.bindBuffer(gl.ARRAY_BUFFER, this.positionBuffer);
+    gl.bufferData(gl.ARRAY_BUFFER, positions, gl.DYNAMIC_DRAW);
+    gl.bindBuffer(gl.ARRAY_BUFFER, this.colourBuffer);
+    gl.bufferData(gl.ARRAY_BUFFER, colours, gl.DYNAMIC_DRAW);
   }
 
   // The view from the camera that took the photo.
