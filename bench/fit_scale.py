@@ -26,9 +26,9 @@ from contract.card import load_card
 from contract.geometry import Intrinsics
 from harness.fitting import bench_arguments, fit_once, report
 from harness.service import ServedDepth, running_service
+from recordings.frames import Frame
 from trainer.config import DataSource
-from trainer.data.formats import open_source
-from trainer.data.frames import Frame
+from trainer.data.sources import open_source
 from trainer.evaluate import evaluate_frames, load_predictor
 from trainer.machine import cpu_description
 

@@ -30,7 +30,7 @@ from contract.runtime import OnnxGenerator
 from harness.fitting import REPO, report
 from harness.timing import interleaved_ms
 from trainer.config import DataSource
-from trainer.data.formats import open_source
+from trainer.data.sources import open_source
 from trainer.evaluate import Predictor, evaluate_frames
 from trainer.quantize import KEEP, METHODS, OPS, calibration_frames, quantize_generator
 

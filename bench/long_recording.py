@@ -35,7 +35,7 @@ VIDEO = (1920, 1440)
 TIMED = """
 import json, sys, time
 from pathlib import Path
-from trainer.data.formats import ReadOptions, open_recording
+from recordings.formats import ReadOptions, open_recording
 started = time.perf_counter()
 recording = open_recording(Path(sys.argv[1]), None, ReadOptions(), Path(sys.argv[2]))
 try:

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from trainer.data.frames import DEFAULT_MAX_FRAMES  # numpy and PIL only: the serving install has them
+from recordings.frames import DEFAULT_MAX_FRAMES  # numpy and PIL only: the serving install has them
 
 if TYPE_CHECKING:
     from contract.geometry import ColourCamera
@@ -237,8 +237,8 @@ def fit(
     """Fit a model of your space from a short RGB-D recording, score it honestly, and publish it."""
     from app.client import service_url
     from app.settings import Settings
-    from trainer.data.folders import CameraFile
-    from trainer.data.formats import ReadOptions
+    from recordings.folders import CameraFile
+    from recordings.formats import ReadOptions
     from trainer.fit.state import interrupted_hint
     from trainer.fit.workflow import FitOptions
     from trainer.fit.workflow import fit as run
@@ -315,7 +315,7 @@ def calibrate(
     ] = [],  # noqa: B006
 ) -> None:
     """Fit where the colour camera sits beside the depth camera, from colour edges and depth steps."""
-    from trainer.registration import calibrate_sequence
+    from recordings.registration import calibrate_sequence
 
     others = {text: parse_colour_camera(text, "--compare") for text in compare}
     for line in calibrate_sequence(root, frames, every, fx, others):

@@ -26,9 +26,9 @@ from scipy.ndimage import maximum_filter, minimum_filter
 
 from contract.errors import UserError
 from contract.geometry import ColourCamera
+from recordings.frames import Frame
 from trainer.config import DataSource
-from trainer.data.formats import describe
-from trainer.data.frames import Frame
+from trainer.data.sources import describe
 from trainer.evaluate import markdown_table, score_source
 from trainer.metrics import MetricAccumulator
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from contract.errors import UserError
-from trainer.data.frames import parse_frame_ranges
+from recordings.frames import parse_frame_ranges
 
 #: A turn of this many degrees counts like one metre of camera travel when picking the
 #: closest training view; roughly where a Kinect view of a room stops overlapping much.

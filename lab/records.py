@@ -149,8 +149,8 @@ def store_evaluations(
     out: Path,
 ) -> Path:
     """``rgb2cloud-lab record``: two evaluate outputs and the run's config, stored as a record; returns its path."""
+    from recordings.manifest import ManifestReader
     from trainer.config import load_config
-    from trainer.data.manifest import ManifestReader
 
     stored = record_from_evaluations(
         json.loads(test.read_text()),

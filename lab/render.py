@@ -12,7 +12,7 @@ import numpy as np
 from PIL import Image
 
 from contract.geometry import ColourCamera, colours, point_cloud, xyz
-from trainer.data.frames import Frame
+from recordings.frames import Frame
 
 
 def _rotation(yaw_deg: float, pitch_deg: float) -> np.ndarray:

@@ -31,10 +31,10 @@ from lab.diagnostics import MedianScaled
 from lab.experiments import experiments_section
 from lab.records import ScoreRecord, is_record, now, read_record, record_path, write_record
 from lab.render import render_pair
+from recordings.manifest import ManifestReader
+from recordings.sevenscenes import SevenScenesReader
 from trainer.baselines import fit_baselines, score_baselines
 from trainer.config import complete_config, load_config
-from trainer.data.manifest import ManifestReader
-from trainer.data.sevenscenes import SevenScenesReader
 from trainer.evaluate import PAPER_TUM, FramePredict, beats, evaluate_frames, load_predictor, markdown_table
 from trainer.visualize import plot_pc_curve, sample_grid
 

@@ -20,8 +20,8 @@ from PIL import Image
 from contract.errors import UserError
 from contract.geometry import Intrinsics
 from harness.recordings import BagWriter
-from trainer.data.folders import CameraFile
-from trainer.data.formats import ReadOptions, open_recording
+from recordings.folders import CameraFile
+from recordings.formats import ReadOptions, open_recording
 
 #: The board's edge at 1 m, in the colour camera's frame: photo pixels whose ray has x / z below it see the board.
 EDGE_X = 0.151

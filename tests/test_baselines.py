@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from contract.geometry import Intrinsics
+from recordings.frames import Frame
 from trainer.baselines import fit_baselines, score_baselines
-from trainer.data.frames import Frame
 
 K = Intrinsics(1, 1, 0, 0, 2, 1)
 

@@ -23,8 +23,8 @@ from PIL import Image
 
 from contract.errors import UserError
 from harness.recordings import MOSD_CAMERA, BagWriter, write_aligned_bag, write_record3d, write_stray_scanner
-from trainer.data.folders import CameraFile
-from trainer.data.formats import ReadOptions, open_recording
+from recordings.folders import CameraFile
+from recordings.formats import ReadOptions, open_recording
 from trainer.fit.inspect import readable
 
 MOSD = REPO.parent / "shared" / "data" / "mosd-tabletop"
@@ -205,12 +205,12 @@ def test_a_full_disk_while_writing_frames_is_not_called_damage(tmp_path, monkeyp
     """A failed write is the disk's, not the bag's: it keeps its own error and traceback."""
     import errno
 
-    import trainer.data.pair_writer
+    import recordings.pair_writer
 
     def full(*_, **__):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(trainer.data.pair_writer.PairWriter, "photo", full)
+    monkeypatch.setattr(recordings.pair_writer.PairWriter, "photo", full)
     bag = write_aligned_bag(tmp_path / "rec.bag", "ros1", mosd_frames(2))
     with pytest.raises(OSError, match="No space left on device") as error:
         read(bag, tmp_path)
@@ -219,12 +219,12 @@ def test_a_full_disk_while_writing_frames_is_not_called_damage(tmp_path, monkeyp
 
 def test_a_bug_in_the_bag_reader_keeps_its_traceback(tmp_path, monkeypatch):
     """Only what the bag libraries raise for damaged bytes becomes one line: a bug is not called damage."""
-    import trainer.data.rosbag
+    import recordings.rosbag
 
     def broken(*_):
         raise KeyError("a bug")
 
-    monkeypatch.setattr(trainer.data.rosbag, "_pair", broken)
+    monkeypatch.setattr(recordings.rosbag, "_pair", broken)
     bag = write_aligned_bag(tmp_path / "rec.bag", "ros1", mosd_frames(2))
     with pytest.raises(KeyError, match="a bug"):
         read(bag, tmp_path)

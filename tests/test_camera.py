@@ -21,7 +21,7 @@ from contract.card import load_card
 from contract.geometry import Intrinsics
 from contract.resample import generator_size
 from harness.service import BUNDLED_REGISTRY, running_service
-from trainer.data.frames import read_depth_png
+from recordings.frames import read_depth_png
 from trainer.metrics import MetricAccumulator
 
 #: The bundled default: the newest bundled version, what `make serve` serves.

@@ -8,7 +8,7 @@ from conftest import SEVEN_SCENES, run_cli
 
 from contract.geometry import Intrinsics
 from lab.diagnostics import MedianScaled, WhereFails, where_fails_line
-from trainer.data.frames import Frame
+from recordings.frames import Frame
 from trainer.evaluate import evaluate_frames
 
 

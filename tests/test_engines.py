@@ -160,7 +160,7 @@ def test_a_bf16_path_slower_than_fp32_is_refused_and_a_faster_one_is_auto(monkey
 
 
 def test_evaluate_on_openvino_scores_as_onnx_runtime_does():
-    from trainer.data.sevenscenes import SevenScenesReader
+    from recordings.sevenscenes import SevenScenesReader
     from trainer.evaluate import evaluate_frames
 
     frames = SevenScenesReader(SEVEN_SCENES, "850,900,950")

@@ -19,10 +19,11 @@ from PIL import Image
 from contract.card import load_card
 from contract.runtime import OnnxGenerator
 from harness.service import ServedDepth, running_service
+from recordings.folders import CameraFile, find_pairs, read_intrinsics_json
+from recordings.formats import ReadOptions, detect_format, open_recording
 from trainer.checkpoint import load_generator_weights
 from trainer.config import DataSource
-from trainer.data.folders import CameraFile, find_pairs, read_intrinsics_json
-from trainer.data.formats import ReadOptions, detect_format, open_recording, open_source
+from trainer.data.sources import open_source
 from trainer.evaluate import evaluate_frames, load_predictor
 from trainer.fit.budget import Plan, Workload, plan_training
 from trainer.fit.split import split_recording

@@ -17,8 +17,8 @@ from contract.card import FitRecord, load_card
 from contract.errors import UserError
 from contract.resample import inference_max_pixels
 from harness.recordings import MOSD_CAMERA, write_aligned_bag, write_stray_scanner
-from trainer.data.formats import ReadOptions, open_recording
-from trainer.data.sevenscenes import SevenScenesReader
+from recordings.formats import ReadOptions, open_recording
+from recordings.sevenscenes import SevenScenesReader
 from trainer.evaluate import Predictor
 from trainer.fit.state import FitState, new_fit_id, published_by
 from trainer.quantize import calibration_frames

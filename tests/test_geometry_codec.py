@@ -8,8 +8,8 @@ from conftest import KINECT
 
 from contract.codec import DepthEncoding, rgb_to_input
 from contract.geometry import POINT, Intrinsics, colours, pad_to_multiple, point_cloud, xyz
+from recordings.frames import Frame
 from trainer.config import TransformConfig
-from trainer.data.frames import Frame
 from trainer.data.transforms import TransformParams, apply_params, crop_size, sample_params
 
 

@@ -23,12 +23,12 @@ from PIL import Image
 from contract.errors import UserError
 from contract.geometry import ColourCamera, Intrinsics
 from harness.kinect_recordings import write_kinect_recording
-from trainer.data.azure_kinect import KinectOptions, read_kinect
-from trainer.data.formats import ReadOptions, detect_format, open_recording
-from trainer.data.frames import Frame
-from trainer.data.kinect_calibration import COLOUR_RESOLUTIONS, DEPTH_MODES, depth_to_colour, mode_lens
-from trainer.data.lens import Lens
-from trainer.registration import alignment
+from recordings.azure_kinect import KinectOptions, read_kinect
+from recordings.formats import ReadOptions, detect_format, open_recording
+from recordings.frames import Frame
+from recordings.kinect_calibration import COLOUR_RESOLUTIONS, DEPTH_MODES, depth_to_colour, mode_lens
+from recordings.lens import Lens
+from recordings.registration import alignment
 
 CAPTURES = REPO.parent / "shared" / "data" / "captures"
 SAMPLE = CAPTURES / "azure-kinect.mkv"
@@ -308,7 +308,7 @@ def test_a_damaged_frame_among_many_is_skipped_and_named(tmp_path):
 
 
 def test_a_depth_scale_for_a_kinect_recording_is_refused(tmp_path):
-    from trainer.data.folders import CameraFile
+    from recordings.folders import CameraFile
 
     with pytest.raises(UserError, match="--depth-scale does not apply to a azurekinect recording"):
         open_recording(tiny(tmp_path / "s.mkv"), None, ReadOptions(camera=CameraFile(depth_scale=1000)), tmp_path)

@@ -13,17 +13,18 @@ from pathlib import Path
 
 from conftest import REPO
 
-PACKAGES = ("contract", "app", "trainer", "lab", "cli", "harness")
+PACKAGES = ("contract", "app", "recordings", "trainer", "lab", "cli", "harness")
 #: Who may import whom. The contract is the base; the service and the trainer stand on it apart;
 #: the CLI assembles both; the research tooling stands on everything (its CLI shares the product's
 #: options) and nothing stands on it.
 ALLOWED = {
     "contract": set(),
     "app": {"contract"},
-    "trainer": {"contract"},
-    "cli": {"contract", "app", "trainer"},
-    "lab": {"contract", "trainer", "cli"},
-    "harness": {"contract", "app"},
+    "recordings": {"contract"},
+    "trainer": {"contract", "recordings"},
+    "cli": {"contract", "app", "recordings", "trainer"},
+    "lab": {"contract", "recordings", "trainer", "cli"},
+    "harness": {"contract", "app", "recordings"},
 }
 #: What the serving image holds (the Dockerfile copies these and nothing else of ours).
 SERVING = ("contract", "app")
@@ -52,6 +53,16 @@ def test_the_contract_never_imports_torch():
         assert "torch" not in _imports(path), path
 
 
+def test_the_recordings_readers_load_no_torch_and_nothing_of_the_trainer():
+    """Every module of ``recordings`` imported in a fresh interpreter: no torch, no trainer in ``sys.modules``."""
+    modules = sorted(f"recordings.{p.stem}" for p in (REPO / "recordings").glob("*.py") if p.stem != "__init__")
+    code = f"import json, sys\nfor m in {modules!r}: __import__(m)\nprint(json.dumps(sorted(sys.modules)))"
+    result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
+    loaded = json.loads(result.stdout)
+    assert len(modules) > 15 and set(modules) <= set(loaded)
+    assert "torch" not in loaded and not [m for m in loaded if m.split(".")[0] in ("trainer", "app", "lab")]
+
+
 def test_starting_the_service_loads_only_the_contract_and_the_service():
     """Import what ``python -m app`` imports and build the app; list the project files that got loaded."""
     code = """
@@ -75,7 +86,7 @@ print(json.dumps(sorted(name for name in sys.modules)))
 def test_the_serving_image_copies_the_contract_and_the_service_only():
     copied = [line.split()[1] for line in (REPO / "Dockerfile").read_text().splitlines() if line.startswith("COPY ")]
     assert set(SERVING) <= set(copied)
-    assert not {"trainer", "lab", "cli", "harness", "tests", "bench", "configs", "docs"} & set(copied)
+    assert not {"recordings", "trainer", "lab", "cli", "harness", "tests", "bench", "configs", "docs"} & set(copied)
 
 
 def _name(requirement: str) -> str:
@@ -119,7 +130,7 @@ def test_the_serving_packages_import_only_the_serving_install():
 
 
 def test_product_files_stay_small():
-    for package in ("contract", "app", "trainer", "cli"):
+    for package in ("contract", "app", "recordings", "trainer", "cli"):
         for path in sorted((REPO / package).rglob("*.py")):
             lines = len(path.read_text().splitlines())
             assert lines <= 400, f"{path.relative_to(REPO)} has {lines} lines"

@@ -12,12 +12,12 @@ from contract.card import load_card
 from contract.errors import UserError
 from contract.geometry import ColourCamera, Intrinsics
 from harness.recordings import MOSD_CAMERA, write_record3d, write_stray_scanner
-from trainer.data.folders import CameraFile
-from trainer.data.formats import ReadOptions, detect_format, open_recording
-from trainer.data.frames import Frame
-from trainer.data.record3d import read_record3d
-from trainer.data.strayscanner import read_stray_scanner
-from trainer.registration import SURFACE_SPREAD, alignment, upsample_depth
+from recordings.folders import CameraFile
+from recordings.formats import ReadOptions, detect_format, open_recording
+from recordings.frames import Frame
+from recordings.record3d import read_record3d
+from recordings.registration import SURFACE_SPREAD, alignment, upsample_depth
+from recordings.strayscanner import read_stray_scanner
 
 IPHONE = DATA / "captures" / "iphone-lidar"
 MOSD = DATA / "mosd-tabletop"

@@ -12,13 +12,13 @@ from PIL import Image
 from scipy.io import savemat
 
 from contract.errors import UserError
+from recordings.frames import parse_frame_ranges, read_depth_png
+from recordings.manifest import ManifestReader
+from recordings.nyu import NYU_CAMERA, NyuReader
+from recordings.sevenscenes import SevenScenesReader
+from recordings.tum import TUM_CAMERAS, TumReader, associate
 from trainer.config import DataSource
-from trainer.data.formats import open_source
-from trainer.data.frames import parse_frame_ranges, read_depth_png
-from trainer.data.manifest import ManifestReader
-from trainer.data.nyu import NYU_CAMERA, NyuReader
-from trainer.data.sevenscenes import SevenScenesReader
-from trainer.data.tum import TUM_CAMERAS, TumReader, associate
+from trainer.data.sources import open_source
 
 
 def _rgb(h: int, w: int, seed: int) -> np.ndarray:

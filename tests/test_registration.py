@@ -12,11 +12,8 @@ import yaml
 from conftest import SEVEN_SCENES, run_cli
 
 from contract.geometry import ColourCamera, Intrinsics
-from trainer.config import DataSource
-from trainer.data.formats import open_source
-from trainer.data.frames import Frame
-from trainer.evaluate import evaluate_frames
-from trainer.registration import (
+from recordings.frames import Frame
+from recordings.registration import (
     alignment,
     colour_coordinates,
     colour_extrinsics,
@@ -26,6 +23,9 @@ from trainer.registration import (
     register_frame,
     reproject_depth,
 )
+from trainer.config import DataSource
+from trainer.data.sources import open_source
+from trainer.evaluate import evaluate_frames
 
 DEPTH_CAMERA = Intrinsics(fx=100.0, fy=100.0, cx=39.5, cy=29.5, width=80, height=60)
 

@@ -22,9 +22,9 @@ from lab.experiments import config_diff, experiments_section
 from lab.records import ScoreRecord, record_config
 from lab.render import render_points
 from lab.report import ReportInputs, _compared, _generator_words, build_report, colour_camera_of
+from recordings.manifest import ManifestReader
+from recordings.sevenscenes import SevenScenesReader
 from trainer.config import complete_config, load_config
-from trainer.data.manifest import ManifestReader
-from trainer.data.sevenscenes import SevenScenesReader
 from trainer.evaluate import evaluate_frames, load_predictor
 
 SHIPPED_CONFIG = REPO / "configs" / "rgb2cloud-7scenes-0.8.0.yaml"

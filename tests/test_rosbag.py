@@ -17,11 +17,11 @@ from contract.card import load_card
 from contract.errors import UserError
 from contract.geometry import ColourCamera, Intrinsics
 from harness.recordings import MOSD_CAMERA, BagWriter, write_aligned_bag
-from trainer.data.folders import CameraFile
-from trainer.data.formats import ReadOptions, detect_format, open_recording
-from trainer.data.frames import Frame
-from trainer.data.rosbag import BagOptions, read_bag
-from trainer.registration import alignment
+from recordings.folders import CameraFile
+from recordings.formats import ReadOptions, detect_format, open_recording
+from recordings.frames import Frame
+from recordings.registration import alignment
+from recordings.rosbag import BagOptions, read_bag
 
 REALSENSE_BAG = DATA / "captures" / "realsense-viewer-d435.bag"
 MOSD = DATA / "mosd-tabletop"

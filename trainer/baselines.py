@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from contract.errors import UserError
+from recordings.frames import Frame
 from trainer.config import DataSource
-from trainer.data.formats import describe, open_source
-from trainer.data.frames import Frame
+from trainer.data.sources import describe, open_source
 from trainer.evaluate import PAPER_TUM, markdown_table
 from trainer.metrics import MetricAccumulator
 

@@ -24,7 +24,7 @@ from contract.codec import DepthEncoding
 from contract.errors import UserError
 from contract.geometry import ColourCamera
 from contract.spec import GeneratorSpec, InferenceSettings, Strict
-from trainer.data.folders import CameraFile
+from recordings.folders import CameraFile
 
 
 class DiscriminatorConfig(Strict):

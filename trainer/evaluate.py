@@ -22,13 +22,13 @@ from contract.errors import UserError
 from contract.geometry import ColourCamera, Intrinsics
 from contract.resample import DepthRun, depth_at_photo, inference_max_pixels
 from contract.runtime import RunPrecision
+from recordings.frames import Frame
+from recordings.registration import sample_at_colour
 from trainer.checkpoint import load_graph
 from trainer.config import DataSource
-from trainer.data.formats import describe, open_source
-from trainer.data.frames import Frame
+from trainer.data.sources import describe, open_source
 from trainer.inference import EagerGenerator
 from trainer.metrics import MetricAccumulator, valid_mask
-from trainer.registration import sample_at_colour
 from trainer.visualize import plot_pc_curve, sample_grid
 
 #: The reference paper's Table 2 (TUM RGB-D) and its mean point-cloud RMSE on TUM.
@@ -100,7 +100,7 @@ def evaluate_frames(
     ``colour_camera``: the ground truth is a depth camera's and the photo and the prediction
     the colour camera's (a model trained on registered depth): the photo is predicted as the
     colour camera's, and each ground-truth pixel is compared with the prediction at the colour
-    pixel that sees the same point (``trainer.registration.sample_at_colour``), so every valid
+    pixel that sees the same point (``recordings.registration.sample_at_colour``), so every valid
     pixel still counts.
     Each of ``diagnostics`` sees every scored prediction; its result is added to the row.
     """

@@ -41,10 +41,10 @@ from contract.errors import UserError
 from contract.geometry import Intrinsics
 from contract.resample import inference_max_pixels, to_model_camera
 from contract.runtime import PARITY_AGREEMENT, OnnxGenerator, Precision
+from recordings.frames import FrameReader
 from trainer.checkpoint import load_graph
 from trainer.config import DataSource
-from trainer.data.formats import describe, open_source
-from trainer.data.frames import FrameReader
+from trainer.data.sources import describe, open_source
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.quantize import (
     CALIBRATION,

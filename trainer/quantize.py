@@ -32,7 +32,7 @@ from contract.codec import DepthEncoding
 from contract.geometry import Intrinsics
 from contract.resample import inference_max_pixels, to_model_camera
 from contract.runtime import OnnxGenerator, depth_agreement, to_grid
-from trainer.data.frames import FrameReader
+from recordings.frames import FrameReader
 
 #: ONNX Runtime's calibration methods, by the names the card and the command line use.
 METHODS = ("minmax", "entropy", "percentile")

@@ -40,7 +40,7 @@ from trainer.checkpoint import (
 )
 from trainer.config import RunConfig, complete_config
 from trainer.data.dataset import ConcatFrames, StepBatchSampler, TrainingSet
-from trainer.data.formats import open_source
+from trainer.data.sources import open_source
 from trainer.devices import (
     Distributed,
     hardware_description,

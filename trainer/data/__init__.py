@@ -1,1 +1,1 @@
-"""Dataset readers (one per on-disk format) and paired training transforms."""
+"""The training dataset: a config's sources as frames (``sources``), paired transforms, and the torch dataset."""

@@ -17,8 +17,8 @@ import torch
 from torch.utils.data import Dataset, Sampler
 
 from contract.codec import DepthEncoding
+from recordings.frames import Frame, FrameReader
 from trainer.config import TransformConfig
-from trainer.data.frames import Frame, FrameReader
 from trainer.data.transforms import apply_params, crop_size, sample_params
 
 

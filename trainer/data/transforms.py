@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from PIL import Image
 
+from recordings.frames import Frame
 from trainer.config import TransformConfig
-from trainer.data.frames import Frame
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ import torch
 
 from contract.errors import UserError
 from trainer.config import RunConfig
-from trainer.data.formats import open_source
+from trainer.data.sources import open_source
 from trainer.data.transforms import resize_frame
 from trainer.devices import Distributed, pick_device
 from trainer.gan import Autocast, build_networks, gan_step

@@ -18,10 +18,10 @@ from PIL import Image
 
 from contract.errors import UserError
 from contract.geometry import ColourCamera
-from trainer.data.formats import Recording
-from trainer.data.frames import Frame, RecordedPair, read_pair
+from recordings.formats import Recording
+from recordings.frames import Frame, RecordedPair, read_pair
+from recordings.registration import alignment, fit_colour_camera
 from trainer.data.transforms import resize_frame
-from trainer.registration import alignment, fit_colour_camera
 
 #: Median depth a room-scale recording has, in metres; outside it the units are wrong.
 PLAUSIBLE_MEDIAN_M = (0.2, 20.0)

@@ -14,7 +14,7 @@ from contract.card import Metrics
 from contract.geometry import ColourCamera
 from trainer.baselines import fit_baselines, score_baselines
 from trainer.config import DataSource, RunConfig
-from trainer.data.formats import open_source
+from trainer.data.sources import open_source
 from trainer.evaluate import evaluate_frames, load_predictor, markdown_table
 
 

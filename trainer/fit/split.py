@@ -12,8 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from contract.errors import UserError
-from trainer.data.folders import select_frames
-from trainer.data.frames import RecordedPair
+from recordings.folders import select_frames
+from recordings.frames import RecordedPair
 
 TRAIN_SHARE, GAP_SHARE = 0.75, 0.05
 #: The end of the train part that chooses the checkpoint.

@@ -24,10 +24,10 @@ from contract.geometry import ColourCamera
 from contract.registries import Registries
 from contract.runtime import Precision
 from contract.spec import GeneratorSpec
+from recordings.formats import ReadOptions, Recording, open_recording
+from recordings.frames import TRAINED_PIXELS, read_pair
+from recordings.manifest import ManifestReader, write_manifest
 from trainer.config import DataSource, RunConfig, apply_overrides, migrate_config
-from trainer.data.formats import ReadOptions, Recording, open_recording
-from trainer.data.frames import TRAINED_PIXELS, read_pair
-from trainer.data.manifest import ManifestReader, write_manifest
 from trainer.fit.budget import Workload, measure_seconds, plan_training
 from trainer.fit.inspect import inspect_recording, readable
 from trainer.fit.scoring import score_holdout

@@ -9,7 +9,7 @@ import numpy as np
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.frames import PairsReader, RecordedPair, parse_frame_ranges
+from recordings.frames import PairsReader, RecordedPair, parse_frame_ranges
 
 #: 7-Scenes' published depth-camera calibration, used when camera-intrinsics.txt is absent.
 SEVEN_SCENES_DEFAULT = Intrinsics(fx=585.0, fy=585.0, cx=320.0, cy=240.0, width=640, height=480)

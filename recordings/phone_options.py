@@ -8,8 +8,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from trainer.data.folders import CameraFile
-from trainer.data.frames import DEFAULT_MAX_FRAMES, kept_note, spread
+from recordings.folders import CameraFile
+from recordings.frames import DEFAULT_MAX_FRAMES, kept_note, spread
 
 #: Depth pixels of lower confidence are dropped by default: ARKit's 2 is "high".
 DEFAULT_MIN_CONFIDENCE = 2

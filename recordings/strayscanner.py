@@ -12,7 +12,7 @@ A Stray Scanner export is a folder (the app's format document, strayrobots/scann
 The video is decoded with PyAV: it gives every frame in order from FFmpeg's decoders (the app
 writes HEVC) without OpenCV's GUI and image-processing weight, and the wheel carries FFmpeg.
 Each kept frame is written at the size fit trains at, by the writer both phone readers share
-(``trainer.data.pair_writer``); of a long recording, an evenly spread cap of frames is kept.
+(``recordings.pair_writer``); of a long recording, an evenly spread cap of frames is kept.
 """
 
 from __future__ import annotations
@@ -27,10 +27,10 @@ from PIL import Image
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.folders import CameraFile
-from trainer.data.frames import PairsReader
-from trainer.data.pair_writer import PairWriter, written_pairs
-from trainer.data.phone_options import PhoneOptions
+from recordings.folders import CameraFile
+from recordings.frames import PairsReader
+from recordings.pair_writer import PairWriter, written_pairs
+from recordings.phone_options import PhoneOptions
 
 if TYPE_CHECKING:
     import av

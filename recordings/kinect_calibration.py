@@ -20,7 +20,7 @@ import numpy as np
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.lens import Lens
+from recordings.lens import Lens
 
 #: The SDK's validity radius for a lens whose calibration left ``MetricRadius`` at 0 (about 120 degrees).
 DEFAULT_METRIC_RADIUS = 1.7

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.frames import PairsReader, RecordedPair, image_size, parse_frame_ranges
+from recordings.frames import PairsReader, RecordedPair, image_size, parse_frame_ranges
 
 COLOUR_FOLDERS = ("color", "rgb", "image")
 DEPTH_FOLDER = "depth"

@@ -17,7 +17,7 @@ import numpy as np
 from PIL import Image
 
 from contract.errors import UserError
-from trainer.data.frames import PNG_MAGIC
+from recordings.frames import PNG_MAGIC
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"

@@ -1,7 +1,7 @@
 """A camera as its images are stored: pinhole intrinsics plus the lens distortion to undo first.
 
 ROS bags (a CameraInfo's ``D``) and Azure Kinect recordings (the factory calibration's Brown-Conrady
-model) both describe real lenses. Registration (``trainer.registration.reproject_depth``) is pinhole
+model) both describe real lenses. Registration (``recordings.registration.reproject_depth``) is pinhole
 geometry, so every reader undoes the distortion here, with OpenCV, before depth is moved.
 """
 

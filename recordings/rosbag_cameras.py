@@ -20,9 +20,9 @@ import numpy as np
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.folders import INTRINSIC_KEYS, CameraFile
-from trainer.data.lens import Lens
-from trainer.data.rosbag_images import Stream
+from recordings.folders import INTRINSIC_KEYS, CameraFile
+from recordings.lens import Lens
+from recordings.rosbag_images import Stream
 
 #: CameraInfo distortion models this reader undoes, with OpenCV: the standard polynomial ones and the fisheye.
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")

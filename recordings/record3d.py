@@ -9,7 +9,7 @@ An ``.r3d`` file is a zip holding:
 - ``rgbd/N.conf``: its confidence (0, 1 or 2 per depth pixel), LZFSE-compressed uint8.
 
 Depth covers the same view as the photo at a coarser grid, so it is upsampled as a Stray Scanner
-recording's is, by the same writer (``trainer.data.pair_writer``): at the size fit trains at, with
+recording's is, by the same writer (``recordings.pair_writer``): at the size fit trains at, with
 the intrinsics scaled to match, and of a long recording an evenly spread cap of frames.
 """
 
@@ -25,10 +25,10 @@ from PIL import Image
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.folders import CameraFile
-from trainer.data.frames import PairsReader
-from trainer.data.pair_writer import PairWriter, written_pairs
-from trainer.data.phone_options import PhoneOptions
+from recordings.folders import CameraFile
+from recordings.frames import PairsReader
+from recordings.pair_writer import PairWriter, written_pairs
+from recordings.phone_options import PhoneOptions
 
 
 def is_record3d(path: Path) -> bool:

@@ -7,7 +7,7 @@ pixel count): writing larger costs decode, resize and disk time for pixels train
 A photo recorded as a JPEG or PNG at that size already is kept byte for byte; every other photo
 is written as a JPEG of quality 95. Depth arrives registered to the written photo (a bag's, a
 Kinect's), or on a coarser grid over the same view (a phone's LiDAR), which
-``trainer.registration.upsample_depth`` brings to the photo without inventing depth across a step.
+``recordings.registration.upsample_depth`` brings to the photo without inventing depth across a step.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ import numpy as np
 from PIL import Image
 
 from contract.geometry import Intrinsics
-from trainer.data.frames import PNG_MAGIC, TRAINED_PIXELS, WRITTEN_DEPTH_SCALE, PairsReader, RecordedPair
-from trainer.registration import upsample_depth
+from recordings.frames import PNG_MAGIC, TRAINED_PIXELS, WRITTEN_DEPTH_SCALE, PairsReader, RecordedPair
+from recordings.registration import upsample_depth
 
 #: A photo's pixels: HxWx3 uint8 RGB, or a PIL image.
 Photo = np.ndarray | Image.Image

@@ -27,7 +27,7 @@ from PIL import Image
 from scipy import ndimage
 
 from contract.geometry import ColourCamera, Intrinsics
-from trainer.data.frames import Frame
+from recordings.frames import Frame
 
 
 def colour_coordinates(depth: np.ndarray, depth_camera: Intrinsics, colour: ColourCamera) -> tuple[np.ndarray, ...]:
@@ -248,8 +248,8 @@ def calibrate_sequence(root: Path, frames: str, every: int, fx: float, others: d
     The fit starts from the depth camera's own intrinsics with focal length ``fx``;
     each of ``others`` (label -> camera) is scored on the same frames for comparison.
     """
-    from trainer.data.frames import parse_frame_ranges
-    from trainer.data.sevenscenes import SevenScenesReader
+    from recordings.frames import parse_frame_ranges
+    from recordings.sevenscenes import SevenScenesReader
 
     chosen = parse_frame_ranges(frames)[::every]
     reader = SevenScenesReader(root, ",".join(str(n) for n in chosen))

@@ -10,7 +10,7 @@ pairs, so this reader:
 2. pairs each colour frame with the depth frame nearest in time (header stamps), within
    ``max_gap_s``; colour frames with none are skipped with the gap that was found;
 3. moves depth into the colour camera when it is not there already, with the rigid
-   transform the bag stores (``trainer.data.rosbag_extrinsics``). With none, only the two
+   transform the bag stores (``recordings.rosbag_extrinsics``). With none, only the two
    cameras' intrinsics are used, and the reader says so;
 4. writes each pair out at the size fit trains at (``PairWriter``: a compressed photo already that size as
    stored, others as JPEG; depth as 16-bit millimetres),
@@ -32,13 +32,14 @@ from typing import Any
 import numpy as np
 
 from contract.errors import UserError
-from trainer.data.folders import CameraFile
-from trainer.data.frames import DEFAULT_MAX_FRAMES, PairsReader, kept_note, nearest_stamp, spread
-from trainer.data.pair_writer import PairWriter, damaged_note, written_pairs
-from trainer.data.rosbag_cameras import Geometry, bag_geometry, is_rectified, same_camera
-from trainer.data.rosbag_damage import damage
-from trainer.data.rosbag_extrinsics import depth_to_colour_extrinsics
-from trainer.data.rosbag_images import (
+from recordings.folders import CameraFile
+from recordings.frames import DEFAULT_MAX_FRAMES, PairsReader, kept_note, nearest_stamp, spread
+from recordings.pair_writer import PairWriter, damaged_note, written_pairs
+from recordings.registration import reproject_depth
+from recordings.rosbag_cameras import Geometry, bag_geometry, is_rectified, same_camera
+from recordings.rosbag_damage import damage
+from recordings.rosbag_extrinsics import depth_to_colour_extrinsics
+from recordings.rosbag_images import (
     COLOUR_ENCODINGS,
     COMPRESSED,
     DEPTH_ENCODINGS,
@@ -51,7 +52,6 @@ from trainer.data.rosbag_images import (
     frame_damage,
     message_size,
 )
-from trainer.registration import reproject_depth
 
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 #: Colour and depth stamped further apart than this are not a pair (a 30 fps stream's frames are 33 ms apart).

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.frames import PairsReader, RecordedPair, image_size
+from recordings.frames import PairsReader, RecordedPair, image_size
 
 COLUMNS = ("rgb", "depth", "depth_scale", "fx", "fy", "cx", "cy")
 

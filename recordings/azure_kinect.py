@@ -13,7 +13,7 @@ The layout (Microsoft's Azure Kinect "record file format"; Orbbec's K4A wrapper 
 This reader turns each camera's calibration into the recording mode's, as the Sensor SDK does
 (``SensorMode``: the sensor binned, then cropped, with OpenCV's pixel-centre convention); pairs each
 colour frame with the depth frame nearest its time plus the delay; undoes both lenses with OpenCV
-(``trainer.data.lens``); moves depth into the colour camera with the calibration's rigid transform
+(``recordings.lens``); moves depth into the colour camera with the calibration's rigid transform
 (``reproject_depth``, as for bags); and writes each kept pair at the size fit trains at.
 """
 
@@ -28,9 +28,9 @@ import numpy as np
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.folders import CameraFile
-from trainer.data.frames import DEFAULT_MAX_FRAMES, PairsReader, kept_note, nearest_stamp, spread
-from trainer.data.kinect_calibration import (
+from recordings.folders import CameraFile
+from recordings.frames import DEFAULT_MAX_FRAMES, PairsReader, kept_note, nearest_stamp, spread
+from recordings.kinect_calibration import (
     COLOUR_RESOLUTIONS,
     DEPTH_MODES,
     SensorMode,
@@ -38,9 +38,9 @@ from trainer.data.kinect_calibration import (
     depth_to_colour,
     mode_lens,
 )
-from trainer.data.lens import Lens
-from trainer.data.pair_writer import PairWriter, damaged_note, written_pairs
-from trainer.registration import reproject_depth
+from recordings.lens import Lens
+from recordings.pair_writer import PairWriter, damaged_note, written_pairs
+from recordings.registration import reproject_depth
 
 #: Colour and depth further apart than this (after the recorded depth delay) are not a pair.
 DEFAULT_MAX_GAP_S = 0.02

@@ -16,7 +16,7 @@ from scipy.io import loadmat
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.frames import Frame
+from recordings.frames import Frame
 
 LICENCE = "NYU Depth V2 (Silberman et al., ECCV 2012): no licence stated; research use, cite the paper"
 #: The RGB camera calibration from the NYU toolbox (camera_params.m).

@@ -17,19 +17,17 @@ import numpy as np
 from PIL import Image
 
 from contract.errors import UserError
-from trainer.config import DataSource
-from trainer.data.azure_kinect import KinectOptions, is_kinect_recording, read_kinect
-from trainer.data.folders import CameraFile, FoldersReader, colour_folder, is_folders_layout, select_frames
-from trainer.data.frames import DEFAULT_MAX_FRAMES, Frame, FrameReader, PairsReader, RecordedPair, kept_note, spread
-from trainer.data.manifest import ManifestReader
-from trainer.data.nyu import NyuReader
-from trainer.data.phone_options import DEFAULT_MIN_CONFIDENCE, PhoneOptions
-from trainer.data.record3d import is_record3d, read_record3d
-from trainer.data.rosbag import DEFAULT_MAX_GAP_S, BagOptions, is_bag, read_bag
-from trainer.data.sevenscenes import SevenScenesReader
-from trainer.data.strayscanner import is_stray_scanner, read_stray_scanner
-from trainer.data.tum import TumReader
-from trainer.registration import ColourCamera, register_frame
+from recordings.azure_kinect import KinectOptions, is_kinect_recording, read_kinect
+from recordings.folders import CameraFile, FoldersReader, colour_folder, is_folders_layout
+from recordings.frames import DEFAULT_MAX_FRAMES, PairsReader, RecordedPair, kept_note, spread
+from recordings.manifest import ManifestReader
+from recordings.nyu import NyuReader
+from recordings.phone_options import DEFAULT_MIN_CONFIDENCE, PhoneOptions
+from recordings.record3d import is_record3d, read_record3d
+from recordings.rosbag import DEFAULT_MAX_GAP_S, BagOptions, is_bag, read_bag
+from recordings.sevenscenes import SevenScenesReader
+from recordings.strayscanner import is_stray_scanner, read_stray_scanner
+from recordings.tum import TumReader
 
 FORMATS = ("folders", "tum", "7scenes", "nyu", "csv", "rosbag", "azurekinect", "strayscanner", "record3d")
 #: Formats whose reader writes frames out as files before they can be listed.
@@ -211,40 +209,3 @@ def _nyu_files(root: Path, folder: Path) -> PairsReader:
             Image.fromarray(np.clip(np.rint(frame.depth * 1000), 0, 65535).astype(np.uint16)).save(depth)
         pairs.append(RecordedPair(f"{i:05d}", rgb, depth, 1000.0, frame.intrinsics))
     return PairsReader(reader.name, reader.licence, pairs)
-
-
-class RegisteredReader:
-    """A reader whose frames carry depth moved into a colour camera (``register_frame``)."""
-
-    def __init__(self, reader: FrameReader, colour: ColourCamera):
-        self.reader, self.colour = reader, colour
-        self.name, self.licence = reader.name, reader.licence
-
-    def __len__(self) -> int:
-        return len(self.reader)
-
-    def __getitem__(self, index: int) -> Frame:
-        return register_frame(self.reader[index], self.colour)
-
-
-def open_source(source: DataSource) -> FrameReader:
-    """A config's data source as frames: ``open_pairs`` for every file layout, NYU's split as arrays."""
-    if source.format == "nyu":
-        reader: FrameReader = NyuReader(source.root, source.split, source.splits_file)
-    elif source.format == "7scenes":
-        reader = SevenScenesReader(source.root, source.frames)  # 7-Scenes selects by frame number
-    else:
-        pairs = open_pairs(source.root, source.format, ReadOptions(camera=source.camera or CameraFile()), None)
-        reader = pairs.selected(select_frames([p.name for p in pairs.pairs], source.frames)) if source.frames else pairs
-    if source.licence:
-        reader.licence = source.licence
-    if source.colour_camera:
-        return RegisteredReader(reader, source.colour_camera)
-    return reader
-
-
-def describe(source: DataSource) -> str:
-    """A short human label: '7scenes-redkitchen 850-999', 'nyu test', ..."""
-    reader_name = source.root.name if source.format != "nyu" else "nyu-depth-v2"
-    selection = source.frames or (source.split if source.format == "nyu" else "all")
-    return f"{reader_name} {selection}"

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from trainer.data.frames import PairsReader, RecordedPair
+from recordings.frames import PairsReader, RecordedPair
 
 LICENCE = "TUM RGB-D benchmark: CC BY 4.0"
 DEPTH_UNITS_PER_METRE = 5000.0
