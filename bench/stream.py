@@ -23,11 +23,11 @@ import httpx
 import numpy as np
 from PIL import Image
 
+from app.stream_client import open_stream, raw_depth, receive
 from app.temporal import TemporalFilter
 from contract.geometry import Intrinsics
 from harness.flicker import read_pose, sequence_flicker
 from harness.service import BUNDLED_REGISTRY, running_service, server_timing
-from harness.streaming import open_stream, raw_depth, receive
 from trainer.machine import cpu_description
 from trainer.metrics import MetricAccumulator
 

@@ -1,4 +1,4 @@
-"""The ``rgb2cloud`` command line: fit, train, evaluate, export, baselines, calibrate, client.
+"""The ``rgb2cloud`` command line: fit, train, evaluate, export, baselines, calibrate, client, stream.
 
 Each command parses its options, calls one function of the trainer or the client,
 and prints. Heavy imports happen inside each command, so ``rgb2cloud --help`` is
@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from cli.stream import stream
 from recordings.frames import DEFAULT_MAX_FRAMES  # numpy and PIL only: the serving install has them
 
 if TYPE_CHECKING:
@@ -61,6 +62,7 @@ MaxDepth = Annotated[float, typer.Option(help="valid ground truth up to (m)")]
 REGISTRY_HELP = "registry to publish into (default: $RGB2CLOUD_REGISTRY, else ~/.local/share/rgb2cloud/models)"
 
 app = typer.Typer(help="rgb2cloud: metric depth and point clouds from one RGB image.", no_args_is_help=True)
+app.command()(stream)
 
 
 @app.command()
@@ -335,9 +337,7 @@ def client(
     retries: Annotated[int, typer.Option(help="retries on 503 or a dropped connection")] = 5,
     stride: Annotated[int, typer.Option(help="point cloud: keep every stride-th row and column")] = 1,
     model: Annotated[str | None, typer.Option(help="the model: NAME or NAME:VERSION (default: the service's)")] = None,
-    fx: Annotated[
-        float | None, typer.Option(help="the photos' focal length in pixels (default: EXIF or the model's)")
-    ] = None,
+    fx: Annotated[float | None, typer.Option(help="the photos' focal length, pixels (EXIF, else the model's)")] = None,
     concurrency: Annotated[int, typer.Option(min=1, help="requests in flight at once")] = 1,
     overwrite: Annotated[
         bool, typer.Option(help="redo outputs that exist (default: skip them, resuming a batch)")

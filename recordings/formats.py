@@ -63,6 +63,8 @@ class Recording:
     licence: str | None
     #: What the reader found that a user should see (a bag's topics, rates, pairing gaps, registration).
     notes: list[str] = field(default_factory=list)
+    #: The colour camera's frame, where the recording names one (a bag's CameraInfo header).
+    frame_id: str | None = None
 
 
 def detect_format(root: Path) -> str:
@@ -163,7 +165,7 @@ def open_recording(root: Path, format: str | None, options: ReadOptions, scratch
         if len(kept) < len(pairs):
             notes.append(kept_note(len(pairs), len(kept), options.every, options.max_frames, "pairs"))
         pairs = kept
-    return Recording(root, format, pairs, reader.skipped, reader.licence or None, notes)
+    return Recording(root, format, pairs, reader.skipped, reader.licence or None, notes, reader.frame_id)
 
 
 def _overridden(pair: RecordedPair, camera: CameraFile) -> RecordedPair:

@@ -61,6 +61,8 @@ class RecordedPair:
     depth: Path
     depth_scale: float
     camera: Intrinsics
+    #: When the photo was taken, in nanoseconds, where the recording stamps its frames (a bag's header).
+    stamp_ns: int | None = None
 
 
 def read_pair(pair: RecordedPair, name: str | None = None) -> Frame:
@@ -88,10 +90,13 @@ class PairsReader:
         pairs: list[RecordedPair],
         skipped: list[tuple[str, str]] | None = None,
         notes: list[str] | None = None,
+        frame_id: str | None = None,
     ):
         self.name, self.licence, self.pairs = name, licence, pairs
         self.skipped = skipped or []
         self.notes = notes or []
+        #: The colour camera's frame, where the recording names one (a bag's CameraInfo header).
+        self.frame_id = frame_id
 
     def __len__(self) -> int:
         return len(self.pairs)
@@ -102,7 +107,8 @@ class PairsReader:
 
     def selected(self, indices: list[int]) -> PairsReader:
         """The same reader holding only the pairs at ``indices``."""
-        return PairsReader(self.name, self.licence, [self.pairs[i] for i in indices], self.skipped, self.notes)
+        pairs = [self.pairs[i] for i in indices]
+        return PairsReader(self.name, self.licence, pairs, self.skipped, self.notes, self.frame_id)
 
 
 #: Raw units per metre of the depth PNGs readers write out (a bag's messages, a phone's maps).

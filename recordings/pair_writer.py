@@ -87,8 +87,16 @@ def damaged_note(damaged: list[tuple[str, str]]) -> str:
 
 
 def written_pairs(
-    name: str, files: list[tuple[str, Path, Path]], camera: Intrinsics, skipped: list[tuple[str, str]], notes: list[str]
+    name: str,
+    files: list[tuple[str, Path, Path]],
+    camera: Intrinsics,
+    skipped: list[tuple[str, str]],
+    notes: list[str],
+    stamps: dict[str, int] | None = None,
+    frame_id: str | None = None,
 ) -> PairsReader:
-    """The frames a reader wrote out: (name, colour file, millimetre depth file) in time order, in ``camera``."""
-    pairs = [RecordedPair(n, rgb, depth, WRITTEN_DEPTH_SCALE, camera) for n, rgb, depth in files]
-    return PairsReader(name, "", pairs, skipped, notes)
+    """The frames a reader wrote out: (name, colour file, millimetre depth file) in time order, in ``camera``,
+    with each photo's stamp in nanoseconds and the colour camera's frame where the recording has them."""
+    stamps = stamps or {}
+    pairs = [RecordedPair(n, rgb, depth, WRITTEN_DEPTH_SCALE, camera, stamps.get(n)) for n, rgb, depth in files]
+    return PairsReader(name, "", pairs, skipped, notes, frame_id)

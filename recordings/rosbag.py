@@ -144,7 +144,7 @@ def _read(reader: Any, path: Path, out: Path, options: BagOptions) -> PairsReade
             f"frames; e.g. {nearest}); pass --max-gap-ms to allow more"
         )
     writer = PairWriter(out, geometry.colour.camera.width, geometry.colour.camera.height)
-    pairs, damaged = _write_pairs(reader, writer, colour, depth, matches, geometry)
+    pairs, damaged, stamps_ns = _write_pairs(reader, writer, colour, depth, matches, geometry)
     gaps_ms = [abs(c - d) * 1000 for c, d in matches.values()]
     total = len(stamps[colour.topic])
     notes = [
@@ -160,7 +160,8 @@ def _read(reader: Any, path: Path, out: Path, options: BagOptions) -> PairsReade
         notes.append(kept_note(total, len(colour_stamps), options.every, options.max_frames))
     if damaged:
         notes.append(damaged_note(damaged))
-    return written_pairs(path.name, pairs, writer.camera(geometry.colour.camera), skipped + damaged, notes)
+    camera = writer.camera(geometry.colour.camera)
+    return written_pairs(path.name, pairs, camera, skipped + damaged, notes, stamps_ns, colour_info.header.frame_id)
 
 
 def _streams(reader: Any) -> list[Stream]:
@@ -241,10 +242,15 @@ def _camera_info(reader: Any, path: Path, stream: Stream) -> Any:
 
 def _stamp(message: Any, bag_ns: int) -> float:
     """Seconds: the header's stamp, or the bag's receive time where the header has none."""
+    return _stamp_ns(message, bag_ns) * 1e-9
+
+
+def _stamp_ns(message: Any, bag_ns: int) -> int:
+    """Nanoseconds, exactly: the header's stamp, or the bag's receive time where the header has none."""
     header = getattr(message, "header", None)
     if header is not None and (header.stamp.sec or header.stamp.nanosec):
-        return header.stamp.sec + header.stamp.nanosec * 1e-9
-    return bag_ns * 1e-9
+        return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+    return bag_ns
 
 
 def _messages(reader: Any, topic: str) -> Iterator[tuple[Any, int, Any]]:
@@ -308,11 +314,11 @@ def _write_pairs(
     depth: Stream,
     matches: dict[int, tuple[float, float]],
     geometry: Geometry,
-) -> tuple[list[tuple[str, Path, Path]], list[tuple[str, str]]]:
+) -> tuple[list[tuple[str, Path, Path]], list[tuple[str, str]], dict[str, int]]:
     """Write each matched pair: the photo undistorted, depth registered to it, both at the written size.
 
     Photos are written in a first pass and depth in a second, so no frame waits in memory for its partner.
-    Returns the pairs written and the damaged ones skipped, with why.
+    Returns the pairs written, the damaged ones skipped with why, and each photo's stamp in nanoseconds.
     """
     wanted_colour = {i: f"{c:.6f}" for i, (c, _) in matches.items()}
     wanted_depth: dict[float, list[str]] = {}
@@ -321,7 +327,8 @@ def _write_pairs(
     colour_files: dict[str, Path] = {}
     damaged: dict[str, str] = {}
     index = -1
-    for connection, _, message in _messages(reader, colour.topic):
+    stamps: dict[str, int] = {}
+    for connection, bag_ns, message in _messages(reader, colour.topic):
         index += 1
         name = wanted_colour.get(index)
         if name is None:
@@ -332,6 +339,7 @@ def _write_pairs(
         except FRAME_DAMAGE as e:
             damaged[name] = f"colour frame {frame_damage(e)}"
             continue
+        stamps[name] = _stamp_ns(message, bag_ns)
         if geometry.colour.model is not None:
             colour_files[name] = writer.photo(name, geometry.colour.undistorted(pixels, nearest=False))[0]
         else:
@@ -356,4 +364,4 @@ def _write_pairs(
         for name in wanted_colour.values()
         if name not in damaged
     ]
-    return files, sorted(damaged.items())
+    return files, sorted(damaged.items()), stamps

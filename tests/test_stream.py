@@ -22,8 +22,8 @@ from PIL import Image
 from plyfile import PlyData
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
+from app.stream_client import open_stream, raw_depth, raw_points, receive
 from harness.service import BUNDLED_REGISTRY, running_service
-from harness.streaming import open_stream, raw_depth, raw_points, receive
 
 pytestmark = pytest.mark.slow
 

@@ -1,0 +1,170 @@
+"""``rgb2cloud stream SOURCE``: a camera, a video, a folder of photos or a recording through ``/v1/stream``.
+
+The client side of the stream for robots: frames go out through one WebSocket (``app.stream_client``),
+and each answer's depth and point cloud are written to a folder (16-bit depth PNGs, PLYs) and/or a
+ROS 2 bag (``recordings.ros2_bag``). Answers come as raw millimetres and raw points, the stream's
+cheapest encodings, and are written with the service's own encoders, so a PNG here is byte for byte
+what ``/depth`` returns. It lives in the command line because it joins the two torch-free halves the
+serving install may hold: the service's client and the recordings' readers.
+"""
+
+from __future__ import annotations
+
+import itertools
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+
+from contract.errors import UserError
+
+
+@dataclass
+class Outputs:
+    """Where answers go: a folder (``out``, with PLYs if ``pointcloud``) and/or an open bag."""
+
+    out: Path | None
+    pointcloud: bool
+    bag: Any | None  # recordings.ros2_bag.DepthBag
+    with_colour: bool
+    with_sensor_depth: bool
+
+    def paths(self, name: str) -> list[Path]:
+        if self.out is None:
+            return []
+        return [self.out / f"{name}.depth.png", *([self.out / f"{name}.ply"] if self.pointcloud else [])]
+
+    def write(self, frame: Any, header: dict[str, Any], payloads: dict[str, bytes]) -> None:
+        from app.imaging import encode_depth_png
+        from app.ply import encode_ply
+        from app.stream_client import raw_depth, raw_points
+        from contract.geometry import POINT, Intrinsics
+
+        entries = {entry["kind"]: entry for entry in header["payloads"]}
+        metres = raw_depth(entries["depth"], payloads["depth"])
+        xyz, rgb = raw_points(entries["pointcloud"], payloads["pointcloud"])
+        if self.out is not None:
+            depth_path, *ply_path = self.paths(frame.name)
+            depth_path.write_bytes(encode_depth_png(metres))
+            if ply_path:
+                points = np.empty(len(xyz), dtype=POINT)
+                for i, axis in enumerate("xyz"):
+                    points[axis] = xyz[:, i]
+                for i, channel in enumerate(("red", "green", "blue")):
+                    points[channel] = rgb[:, i]
+                ply_path[0].write_bytes(encode_ply(points))
+        if self.bag is not None:
+            k = Intrinsics(**header["intrinsics"])
+            stamp, bag, topics = frame.stamp_ns, self.bag, self.bag.topics
+            bag.depth_image(topics.depth, stamp, metres)
+            bag.camera_info(topics.depth_info, stamp, k)
+            bag.point_cloud(stamp, xyz, rgb)
+            if self.with_colour:
+                bag.colour(stamp, frame.data, k)
+            if self.with_sensor_depth and (sensor := frame.sensor_metres()) is not None:
+                bag.depth_image(topics.sensor_depth, stamp, sensor)
+            bag.frames += 1
+
+
+def stream_options(first: Any, given: dict[str, Any]) -> dict[str, Any]:
+    """The stream's query: both outputs, raw, and the recording's own camera unless the user gave one."""
+    options = {"output": "both", "depth_encoding": "raw16", "cloud_encoding": "raw"}
+    camera = first.camera
+    if camera is not None and given.get("fx") is None and given.get("fy") is None:
+        options |= {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy}
+    return options | {k: v for k, v in given.items() if v is not None}
+
+
+def run_stream(source: Any, url: str, outputs: Outputs, given: dict[str, Any], overwrite: bool) -> tuple[int, int]:
+    """Every frame through one stream into ``outputs``; (frames written, frames refused)."""
+    from tqdm import tqdm
+    from websockets.exceptions import InvalidHandshake
+
+    from app.stream_client import answers, open_stream
+
+    frames = source.frames
+    if not source.live and outputs.out is not None and not overwrite:
+        frames = (f for f in frames if not all(p.exists() for p in outputs.paths(f.name)))
+    first = next(frames, None)
+    if first is None:
+        return 0, 0
+    frames = itertools.chain([first], frames)
+    written = refused = 0
+    bar = tqdm(desc="stream", unit="frame", mininterval=1.0)
+    started = time.perf_counter()
+    try:
+        socket = open_stream(url, **stream_options(first, given))
+    except InvalidHandshake as e:
+        raise UserError(f"{url}: the service refused the stream: {e}") from None
+    with socket:
+        for answer in answers(socket, frames, lambda f: f.data, source.live):
+            bar.update(1)
+            if answer.error is not None:
+                refused += 1
+                tqdm.write(f"{answer.item.name}: {answer.error}")
+                continue
+            outputs.write(answer.item, answer.header, answer.payloads)
+            written += 1
+            rate = written / max(1e-9, time.perf_counter() - started)
+            bar.set_postfix(fps=f"{rate:.1f}", skipped=answer.header["skipped"], refresh=False)
+    bar.close()
+    return written, refused
+
+
+def stream(
+    source: Annotated[
+        str, typer.Argument(help="a camera (/dev/videoN or an index), a video, a folder of photos, or a recording")
+    ],
+    out: Annotated[Path | None, typer.Option("-o", "--out", help="write NAME.depth.png (16-bit mm) here")] = None,
+    bag: Annotated[Path | None, typer.Option(help="write a ROS 2 bag (MCAP) into this new folder")] = None,
+    pointcloud: Annotated[bool, typer.Option(help="with --out: also NAME.ply")] = False,
+    with_colour: Annotated[bool, typer.Option(help="bag: the photos too, so the bag plays on its own")] = False,
+    with_sensor_depth: Annotated[
+        bool, typer.Option(help="bag: a recording's own depth, registered to colour, beside the model's")
+    ] = False,
+    namespace: Annotated[str, typer.Option(help="bag: the topics' namespace (realsense-ros's names)")] = "/camera",
+    url: Annotated[str | None, typer.Option(help="service URL (default: RGB2CLOUD_HOST and _PORT)")] = None,
+    model: Annotated[str | None, typer.Option(help="NAME or NAME:VERSION (default: the service's)")] = None,
+    fx: Annotated[float | None, typer.Option(help="focal length, pixels (the recording's, else the model's)")] = None,
+    stride: Annotated[int, typer.Option(min=1, max=64, help="point clouds: every stride-th row and column")] = 1,
+    max_depth: Annotated[float, typer.Option(help="point clouds: drop points farther (m)")] = 100.0,
+    smooth: Annotated[str, typer.Option(help="off | temporal (docs/api.md#streams)")] = "off",
+    format: Annotated[str | None, typer.Option(help="the recording's format, where it cannot be told")] = None,
+    overwrite: Annotated[bool, typer.Option(help="--out: redo frames whose files exist")] = False,
+) -> None:
+    """Stream frames through a running service; write depth and point clouds to a folder or a ROS 2 bag."""
+    from websockets.exceptions import ConnectionClosed
+
+    from app.client import service_url
+    from app.stream_client import StreamRefused
+    from recordings.formats import ReadOptions
+    from recordings.ros2_bag import DepthBag, Topics
+    from recordings.sources import stream_source
+
+    if out is None and bag is None:
+        raise UserError("nothing to write: give --out DIR and/or --bag DIR")
+    given = {"model": model, "fx": fx, "stride": stride, "max_depth": max_depth, "smooth": smooth}
+    with tempfile.TemporaryDirectory(prefix="rgb2cloud-stream-") as scratch:
+        found = stream_source(source, format, ReadOptions(max_frames=None), Path(scratch))
+        if out is not None:
+            out.mkdir(parents=True, exist_ok=True)
+        writer = DepthBag(bag, Topics(namespace), found.frame_id) if bag is not None else None
+        outputs = Outputs(out, pointcloud, writer, with_colour, with_sensor_depth)
+        typer.echo(f"streaming {source} ({found.description}) to {url or service_url()}", err=True)
+        try:
+            written, refused = run_stream(found, url or service_url(), outputs, given, overwrite)
+        except (StreamRefused, ConnectionClosed) as e:
+            raise UserError(f"the stream ended: {e}") from None
+        except KeyboardInterrupt:
+            typer.echo("stopped (Ctrl-C): what was written is complete", err=True)
+            raise typer.Exit(130) from None
+        finally:
+            if writer is not None:
+                writer.close()
+    typer.echo(f"{written} frames written" + (f", {refused} refused" if refused else ""))
+    if refused:
+        raise typer.Exit(1)

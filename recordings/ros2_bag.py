@@ -1,0 +1,175 @@
+"""A ROS 2 bag (MCAP storage, written with ``rosbags``) of served depth, as a depth camera's driver records it.
+
+Per frame, stamped with the source frame's time and in its colour frame:
+
+- ``sensor_msgs/msg/Image``, 32FC1 depth in metres (REP 118), NaN where there is no depth;
+- ``sensor_msgs/msg/CameraInfo`` of the camera the depth was inferred with (no distortion: the
+  service's depth is of an ideal pinhole camera, P = [K | 0]);
+- ``sensor_msgs/msg/PointCloud2``, float32 x, y, z and the packed ``rgb`` RViz colours by, one point
+  per valid pixel (``is_dense``);
+- optionally the colour photo (``CompressedImage``, as sent) and the sensor's own depth (32FC1).
+
+Topic names follow realsense-ros under a namespace (``/camera`` by default). The bag's metadata is
+written when the writer closes, which ``close`` does on any exit, Ctrl-C included, so what was
+written stays a readable bag.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from contract.errors import UserError
+from contract.geometry import Intrinsics
+
+#: PointCloud2 field datatype FLOAT32 (sensor_msgs/msg/PointField).
+FLOAT32 = 7
+#: Bytes per point: x, y, z and rgb, four float32s.
+POINT_STEP = 16
+
+
+@dataclass(frozen=True)
+class Topics:
+    """Where each message goes, realsense-ros's names under ``namespace``."""
+
+    namespace: str = "/camera"
+
+    def __post_init__(self) -> None:
+        if not self.namespace.startswith("/") or self.namespace.endswith("/"):
+            raise UserError(f"--namespace {self.namespace!r}: a ROS name starts with / and does not end with one")
+
+    @property
+    def depth(self) -> str:
+        return f"{self.namespace}/aligned_depth_to_color/image_raw"
+
+    @property
+    def depth_info(self) -> str:
+        return f"{self.namespace}/aligned_depth_to_color/camera_info"
+
+    @property
+    def points(self) -> str:
+        return f"{self.namespace}/depth/color/points"
+
+    @property
+    def colour(self) -> str:
+        return f"{self.namespace}/color/image_raw/compressed"
+
+    @property
+    def colour_info(self) -> str:
+        return f"{self.namespace}/color/camera_info"
+
+    @property
+    def sensor_depth(self) -> str:
+        return f"{self.namespace}/sensor/aligned_depth_to_color/image_raw"
+
+
+def packed_rgb(rgb: np.ndarray) -> np.ndarray:
+    """N x 3 uint8 colours as PCL packs them: 0x00RRGGBB in a uint32, read as the bits of a float32."""
+    words = (rgb[:, 0].astype(np.uint32) << 16) | (rgb[:, 1].astype(np.uint32) << 8) | rgb[:, 2].astype(np.uint32)
+    return words.view(np.float32)
+
+
+class DepthBag:
+    """An open ROS 2 bag that frames are added to; ``close`` (or leaving the ``with``) finishes it."""
+
+    def __init__(self, path: Path, topics: Topics, frame_id: str):
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.typesys import Stores, get_typestore
+
+        if Path(path).exists():
+            raise UserError(f"{path}: exists; a bag is written into a new folder")
+        self.store = get_typestore(Stores.ROS2_HUMBLE)
+        self.topics, self.frame_id = topics, frame_id
+        self.writer = Writer(Path(path), version=8, storage_plugin=StoragePlugin.MCAP)
+        self.writer.open()
+        self._connections: dict[str, Any] = {}
+        self.frames = 0
+
+    def __enter__(self) -> DepthBag:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.writer.close()
+
+    def _put(self, topic: str, msgtype: str, stamp_ns: int, message: Any) -> None:
+        if topic not in self._connections:
+            self._connections[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store)
+        self.writer.write(self._connections[topic], stamp_ns, self.store.serialize_cdr(message, msgtype))
+
+    def _header(self, stamp_ns: int) -> Any:
+        types = self.store.types
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        return types["std_msgs/msg/Header"](
+            stamp=types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=self.frame_id
+        )
+
+    def depth_image(self, topic: str, stamp_ns: int, metres: np.ndarray) -> None:
+        """32FC1 metres, NaN where there is no depth (0 in the service's millimetres)."""
+        values = np.where(metres > 0, metres, np.nan).astype("<f4")
+        height, width = values.shape
+        message = self.store.types["sensor_msgs/msg/Image"](
+            header=self._header(stamp_ns),
+            height=height,
+            width=width,
+            encoding="32FC1",
+            is_bigendian=0,
+            step=width * 4,
+            data=values.view(np.uint8).ravel(),
+        )
+        self._put(topic, "sensor_msgs/msg/Image", stamp_ns, message)
+
+    def camera_info(self, topic: str, stamp_ns: int, k: Intrinsics) -> None:
+        message = self.store.types["sensor_msgs/msg/CameraInfo"](
+            header=self._header(stamp_ns),
+            height=k.height,
+            width=k.width,
+            distortion_model="plumb_bob",
+            d=np.zeros(5),
+            k=np.array([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1], dtype=np.float64),
+            r=np.eye(3).ravel(),
+            p=np.array([k.fx, 0, k.cx, 0, 0, k.fy, k.cy, 0, 0, 0, 1, 0], dtype=np.float64),
+            binning_x=0,
+            binning_y=0,
+            roi=self.store.types["sensor_msgs/msg/RegionOfInterest"](
+                x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+            ),
+        )
+        self._put(topic, "sensor_msgs/msg/CameraInfo", stamp_ns, message)
+
+    def point_cloud(self, stamp_ns: int, xyz: np.ndarray, rgb: np.ndarray) -> None:
+        """One point per valid pixel: x, y, z in metres (camera frame) and the packed rgb, 16 bytes each."""
+        types = self.store.types
+        records = np.empty((len(xyz), 4), dtype="<f4")
+        records[:, :3] = xyz
+        records[:, 3] = packed_rgb(rgb)
+        fields = [
+            types["sensor_msgs/msg/PointField"](name=name, offset=4 * i, datatype=FLOAT32, count=1)
+            for i, name in enumerate(("x", "y", "z", "rgb"))
+        ]
+        message = types["sensor_msgs/msg/PointCloud2"](
+            header=self._header(stamp_ns),
+            height=1,
+            width=len(xyz),
+            fields=fields,
+            is_bigendian=False,
+            point_step=POINT_STEP,
+            row_step=POINT_STEP * len(xyz),
+            data=records.view(np.uint8).ravel(),
+            is_dense=True,
+        )
+        self._put(self.topics.points, "sensor_msgs/msg/PointCloud2", stamp_ns, message)
+
+    def colour(self, stamp_ns: int, encoded: bytes, k: Intrinsics) -> None:
+        """The photo as it was sent (JPEG or PNG), and its camera."""
+        kind = "png" if encoded[:4] == b"\x89PNG" else "jpeg"
+        message = self.store.types["sensor_msgs/msg/CompressedImage"](
+            header=self._header(stamp_ns), format=kind, data=np.frombuffer(encoded, np.uint8)
+        )
+        self._put(self.topics.colour, "sensor_msgs/msg/CompressedImage", stamp_ns, message)
+        self.camera_info(self.topics.colour_info, stamp_ns, k)

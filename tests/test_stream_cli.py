@@ -1,0 +1,230 @@
+"""``rgb2cloud stream`` against the real service under uvicorn: a video, a ROS 2 bag and a folder in,
+a folder of PNG/PLY files and a ROS 2 bag out, read back with Pillow, plyfile and ``rosbags``.
+
+Expected values come from outside the command: stamps from the input read with PyAV and rosbags,
+depth from ``POST /depth`` of the same photo, points from ``POST /pointcloud``.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import av
+import httpx
+import numpy as np
+import pytest
+from conftest import REPO, SEVEN_SCENES
+from PIL import Image
+from plyfile import PlyData
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
+from harness.recordings import MOSD_CAMERA, write_aligned_bag
+from harness.service import BUNDLED_REGISTRY, running_service
+
+pytestmark = pytest.mark.slow
+
+MOSD = REPO.parent / "shared" / "data" / "mosd-tabletop"
+KITCHEN = [SEVEN_SCENES / f"frame-{n:06d}.color.jpg" for n in range(850, 910)]
+
+
+@pytest.fixture(scope="module")
+def service():
+    with running_service(bundled_registry=BUNDLED_REGISTRY, model="rgb2cloud-7scenes", engine="onnxruntime") as up:
+        yield up.url
+
+
+def stream_cli(url: str, *args: str, check: bool = True) -> subprocess.CompletedProcess:
+    result = subprocess.run(
+        [sys.executable, "-m", "cli", "stream", *args, "--url", url], cwd=REPO, capture_output=True, text=True
+    )
+    assert not check or result.returncode == 0, result.stderr
+    return result
+
+
+def posted_depth(url: str, photo: bytes, **params) -> np.ndarray:
+    response = httpx.post(f"{url}/depth", files={"image": ("p", photo)}, params=params, timeout=60)
+    response.raise_for_status()
+    return np.asarray(Image.open(io.BytesIO(response.content)), dtype=np.float64) / 1000
+
+
+def read_bag(path: Path) -> dict[str, list[tuple[str, int, object]]]:
+    """Every message of the bag by topic: (type, bag time, message), read with rosbags alone."""
+    topics: dict[str, list] = {}
+    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+        for connection, t, raw in reader.messages():
+            message = reader.deserialize(raw, connection.msgtype)
+            topics.setdefault(connection.topic, []).append((connection.msgtype, t, message))
+    return topics
+
+
+def stamp_ns(message) -> int:
+    return message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
+
+
+def write_video(path: Path, photos: list[Path]) -> list[int]:
+    """An MPEG-4 video of the photos at 30 fps; the stamps (ns) PyAV reads back from it."""
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("mpeg4", rate=30)
+        stream.width, stream.height, stream.pix_fmt = 640, 480, "yuv420p"
+        for photo in photos:
+            frame = av.VideoFrame.from_image(Image.open(photo).convert("RGB"))
+            container.mux(stream.encode(frame))
+        container.mux(stream.encode())
+    with av.open(str(path)) as container:
+        return [round(float(f.pts * f.time_base) * 1e9) for f in container.decode(video=0)]
+
+
+def test_a_60_frame_video_becomes_a_bag_of_depth_camera_info_and_clouds(service, tmp_path):
+    stamps = write_video(tmp_path / "kitchen.mp4", KITCHEN)
+    assert len(stamps) == 60
+    stream_cli(service, str(tmp_path / "kitchen.mp4"), "--bag", str(tmp_path / "bag"), "--stride", "4")
+    topics = read_bag(tmp_path / "bag")
+    depth = topics["/camera/aligned_depth_to_color/image_raw"]
+    info = topics["/camera/aligned_depth_to_color/camera_info"]
+    clouds = topics["/camera/depth/color/points"]
+    assert [stamp_ns(m) for _, _, m in depth] == stamps == [stamp_ns(m) for _, _, m in clouds]
+    assert [t for _, t, _ in depth] == stamps  # the bag's own times too
+    for _, _, image in depth[:3]:
+        assert image.encoding == "32FC1" and (image.width, image.height, image.step) == (640, 480, 2560)
+        assert image.header.frame_id == "camera_color_optical_frame"
+    msgtype, _, camera = info[0]
+    assert msgtype == "sensor_msgs/msg/CameraInfo" and (camera.width, camera.height) == (640, 480)
+    assert camera.k[0] == camera.k[4] == pytest.approx(530.0)  # no focal length known: the model's camera
+    msgtype, _, cloud = clouds[0]
+    assert msgtype == "sensor_msgs/msg/PointCloud2" and cloud.height == 1 and cloud.point_step == 16
+    assert [(f.name, f.offset, f.datatype, f.count) for f in cloud.fields] == [
+        ("x", 0, 7, 1),
+        ("y", 4, 7, 1),
+        ("z", 8, 7, 1),
+        ("rgb", 12, 7, 1),
+    ]
+    assert cloud.width == 160 * 120 and len(cloud.data) == 16 * cloud.width  # stride 4, every pixel has depth
+
+
+def test_a_ros2_bag_streams_with_its_stamps_camera_frame_and_sensor_depth(service, tmp_path):
+    photos = sorted((MOSD / "color").glob("learn*.jpg"))[:4]
+    frames = [
+        (np.asarray(Image.open(p).convert("RGB")), np.asarray(Image.open(MOSD / "depth" / f"{p.stem}.png")))
+        for p in photos
+    ]
+    source = write_aligned_bag(tmp_path / "recording", "mcap", frames)
+    colour = read_bag(source)["/camera/color/image_raw"]
+    out = tmp_path / "streamed"
+    stream_cli(service, str(source), "--bag", str(out), "--with-colour", "--with-sensor-depth", "--namespace", "/cam")
+    topics = read_bag(out)
+    depth = topics["/cam/aligned_depth_to_color/image_raw"]
+    assert [stamp_ns(m) for _, _, m in depth] == [stamp_ns(m) for _, _, m in colour]
+    assert {m.header.frame_id for _, _, m in depth} == {"camera"}  # the bag's own colour frame
+    (_, _, info), *_ = topics["/cam/aligned_depth_to_color/camera_info"]
+    k = MOSD_CAMERA
+    assert list(info.k) == pytest.approx([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1])  # the recording's camera
+    photo = topics["/cam/color/image_raw/compressed"][0][2]
+    assert photo.format == "jpeg"
+    with Image.open(io.BytesIO(photo.data.tobytes())) as im:
+        assert im.size == (640, 480)
+    # The depth in the bag is what /depth gives for the same photo and camera, to the millimetre.
+    served = posted_depth(service, photo.data.tobytes(), fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy)
+    first = depth[0][2]
+    metres = np.frombuffer(first.data, dtype="<f4").reshape(first.height, first.width)
+    np.testing.assert_array_equal(np.rint(np.nan_to_num(metres) * 1000), np.rint(served * 1000))
+    sensor = topics["/cam/sensor/aligned_depth_to_color/image_raw"][0][2]
+    sensor_m = np.frombuffer(sensor.data, dtype="<f4").reshape(480, 640)
+    recorded = frames[0][1].astype(np.float64) / 1000
+    assert np.isnan(sensor_m[recorded == 0]).all() and np.isnan(sensor_m).mean() > 0.2  # NaN where no reading
+    np.testing.assert_allclose(sensor_m[recorded > 0], recorded[recorded > 0], atol=1e-6)
+
+
+def test_a_folder_gives_png_and_ply_files_and_a_rerun_skips_them(service, tmp_path):
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for i, photo in enumerate(KITCHEN[:3]):
+        (folder / f"shot-{i * 5}.jpg").write_bytes(photo.read_bytes())  # shot-0, shot-5, shot-10: numeric order
+    out = tmp_path / "out"
+    first = stream_cli(service, str(folder), "--out", str(out), "--pointcloud", "--stride", "2")
+    assert "3 frames written" in first.stdout
+    for i, photo in enumerate(KITCHEN[:3]):
+        with Image.open(out / f"shot-{i * 5}.depth.png") as im:
+            assert im.mode in ("I;16", "I") and im.size == (640, 480)
+            np.testing.assert_array_equal(np.asarray(im) / 1000, posted_depth(service, photo.read_bytes()))
+        ply = PlyData.read(out / f"shot-{i * 5}.ply")["vertex"]
+        response = httpx.post(
+            f"{service}/pointcloud", files={"image": photo.read_bytes()}, params={"stride": 2}, timeout=60
+        )
+        served = PlyData.read(io.BytesIO(response.content))["vertex"]
+        assert ply.count == served.count == 320 * 240
+        np.testing.assert_array_equal(ply["z"], served["z"])
+    again = stream_cli(service, str(folder), "--out", str(out), "--pointcloud")
+    assert "0 frames written" in again.stdout
+
+
+def test_ctrl_c_mid_stream_leaves_a_bag_that_reads(service, tmp_path):
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for n in range(850, 1000):
+        (folder / f"{n}.jpg").write_bytes((SEVEN_SCENES / f"frame-{n:06d}.color.jpg").read_bytes())
+    out = tmp_path / "bag"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "cli", "stream", str(folder), "--bag", str(out), "--url", service],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(6)  # well into the 150 frames (about 12 a second on 2 cores)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert "stopped (Ctrl-C)" in stderr and "Traceback" not in stderr
+    depth = read_bag(out)["/camera/aligned_depth_to_color/image_raw"]
+    assert 0 < len(depth) < 150
+
+
+def test_bad_sources_and_options_are_one_line_errors(service, tmp_path):
+    for args, says in [
+        ([str(tmp_path / "nothing"), "--out", str(tmp_path / "o")], "no such file or folder"),
+        ([str(tmp_path), "--out", str(tmp_path / "o")], "no photos"),
+        ([str(KITCHEN[0].parent), "--bag", str(tmp_path / "b"), "--namespace", "camera"], "a ROS name starts with /"),
+        ([str(KITCHEN[0].parent)], "nothing to write"),
+    ]:
+        result = stream_cli(service, *args, check=False)
+        assert result.returncode == 1 and says in result.stderr and "Traceback" not in result.stderr, result.stderr
+
+
+def loopback_devices() -> list[str]:
+    names = Path("/sys/class/video4linux")
+    if not names.is_dir():
+        return []
+    return [f"/dev/{d.name}" for d in names.iterdir() if "loopback" in (d / "name").read_text().lower()]
+
+
+def test_a_webcam_through_v4l2loopback(service, tmp_path):
+    devices = loopback_devices()
+    if not devices:
+        pytest.skip("no v4l2loopback device: this kernel offers none (it needs the module and root to load it)")
+    if not (ffmpeg := os.popen("command -v ffmpeg").read().strip()):
+        pytest.skip(f"{devices[0]} is a v4l2loopback device, but there is no ffmpeg to feed it frames")
+    feeder = subprocess.Popen(
+        [ffmpeg, "-re", "-stream_loop", "-1", "-i", str(KITCHEN[0]), "-f", "v4l2", "-pix_fmt", "yuv420p", devices[0]],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "cli", "stream", devices[0], "--bag", str(tmp_path / "bag"), "--url", service],
+            cwd=REPO,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        time.sleep(8)
+        process.send_signal(signal.SIGINT)
+        process.communicate(timeout=60)
+        assert len(read_bag(tmp_path / "bag")["/camera/aligned_depth_to_color/image_raw"]) > 0
+    finally:
+        feeder.terminate()
