@@ -48,6 +48,12 @@ class ServiceMetrics:
         self.in_flight = Gauge("rgb2cloud_inference_in_flight", "images being inferred now", registry=self.registry)
         self.queued = Gauge("rgb2cloud_inference_queued", "images waiting for the pool", registry=self.registry)
         self.streams_open = Gauge("rgb2cloud_streams_open", "WebSocket streams open now", registry=self.registry)
+        self.streams_refused = Counter(
+            "rgb2cloud_streams_refused",
+            "streams refused at the door: full (closed with 1013) or origin (403, not allowed by CORS)",
+            ["reason"],
+            registry=self.registry,
+        )
         self.stream_frames = Counter(
             "rgb2cloud_stream_frames",
             "stream messages by outcome: frames received, answered, skipped (a newer frame replaced them while "

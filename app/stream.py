@@ -10,6 +10,8 @@ behind four jobs at most. The protocol is in docs/api.md.
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import ipaddress
 import json
 import logging
 import time
@@ -127,14 +129,25 @@ async def resolve(
 
 
 def origin_allowed(origin: str | None, host: str | None, allowed: list[str]) -> bool:
-    """Browsers apply no CORS to WebSockets, so the service does: a page may open a stream if it was served
-    by this service (its origin's host is the Host it connects to) or its origin is one the CORS setting
-    allows. Clients that are not browsers send no Origin and are not asked."""
+    """Browsers apply no CORS to WebSockets, so the service does: a page may open a stream if its origin is
+    one the CORS setting allows, or if this service served it (its origin is the Host it connects to) at an
+    IP address or ``localhost``. A page at a domain name must be listed: its name could be re-pointed at this
+    machine (DNS rebinding) by whoever owns it. Clients that are not browsers send no Origin and are not asked.
+    """
     if origin is None:
         return True
     if "*" in allowed or origin in allowed:
         return True
-    return host is not None and urlsplit(origin).netloc.lower() == host.lower()
+    if host is None or urlsplit(origin).netloc.lower() != host.lower():
+        return False
+    name = (urlsplit(f"//{host}").hostname or "").lower()
+    if name == "localhost":
+        return True
+    try:
+        ipaddress.ip_address(name)
+    except ValueError:
+        return False
+    return True
 
 
 @dataclass
@@ -220,7 +233,6 @@ class Stream:
     async def read(self) -> str:
         """Read until the client leaves or idles; returns why the stream ends."""
         seq = 0
-        limit = self.settings.stream_max_frame_bytes
         while True:
             try:
                 message = await asyncio.wait_for(self.socket.receive(), self.settings.stream_idle_s)
@@ -231,10 +243,7 @@ class Stream:
             if message.get("bytes") is not None:
                 seq += 1
                 self.metrics.stream_frames.labels("received").inc()
-                data = message["bytes"]
-                if len(data) > limit:
-                    await self.refuse(413, f"frame is {len(data)} bytes; the limit is {limit}", seq)
-                elif self.mailbox.put(Frame(seq, data, time.perf_counter())):
+                if self.mailbox.put(Frame(seq, message["bytes"], time.perf_counter())):
                     self.metrics.stream_frames.labels("skipped").inc()
             elif message.get("text") is not None:
                 await self.change(message["text"])
@@ -243,8 +252,8 @@ class Stream:
         """A JSON object of options: merged into the stream's, checked, and acknowledged with the result."""
         try:
             change = json.loads(text)
-        except json.JSONDecodeError as e:
-            await self.refuse(400, f"a text message must be a JSON object of options: {e}")
+        except (ValueError, RecursionError) as e:  # malformed, a number too long to convert, nested too deep
+            await self.refuse(400, f"a text message must be a JSON object of options: {str(e)[:200]}")
             return
         if not isinstance(change, dict):
             await self.refuse(400, f"a text message must be a JSON object of options, not {type(change).__name__}")
@@ -265,6 +274,10 @@ class Stream:
             frame = await self.mailbox.take()
             model, options = self.model, self.options
             started = time.perf_counter()
+            limit = self.settings.stream_max_frame_bytes
+            if len(frame.data) > limit:  # answered here, in order with the frames before it
+                await self.refuse(413, f"the frame is {len(frame.data)} bytes; the limit is {limit}", frame.seq)
+                continue
             try:
                 result: StreamFrame = await self.pool.run(
                     stream_frame, model, frame.data, self.request, options.camera(), options.frame(), self.smoother
@@ -312,12 +325,13 @@ class Stream:
         answerer.cancel()
         reader.cancel()
         await asyncio.gather(reader, answerer, return_exceptions=True)
-        if answerer in done and isinstance(answerer.exception(), WebSocketDisconnect | OSError):
-            return  # the client left while its answer was being sent
-        if answerer in done:
-            log.error("stream failed", exc_info=answerer.exception())
-            await self.socket.close(SERVER_ERROR, "the service failed to answer a frame")
-        elif reader.exception() is None and reader.result() == "idle":
+        failed = next((t for t in (reader, answerer) if t in done and t.exception() is not None), None)
+        if failed is not None and isinstance(failed.exception(), WebSocketDisconnect | OSError):
+            return  # the client left while an answer was being read or sent
+        if failed is not None:
+            log.error("stream failed", exc_info=failed.exception())
+            await self.socket.close(SERVER_ERROR, "the service failed on this stream; it is logged")
+        elif reader in done and reader.result() == "idle":
             await self.socket.close(GOING_AWAY, f"idle: no message for {self.settings.stream_idle_s:g} s")
 
 
@@ -327,12 +341,15 @@ async def stream(socket: WebSocket) -> None:
     state = socket.app.state
     settings: Settings = state.settings
     if not origin_allowed(socket.headers.get("origin"), socket.headers.get("host"), settings.cors_origins):
+        state.metrics.streams_refused.labels("origin").inc()
         await socket.close(POLICY, "this origin may not open a stream (RGB2CLOUD_CORS_ORIGINS)")
         return  # closed before accepting: the browser's handshake fails with 403
     streams: OpenStreams = state.streams
     await socket.accept()
     if not streams.try_open():
-        await socket.close(TRY_AGAIN_LATER, f"busy: {streams.limit} streams are open, the most this service takes")
+        with contextlib.suppress(WebSocketDisconnect, OSError):  # a client that left at once
+            await socket.close(TRY_AGAIN_LATER, f"busy: {streams.limit} streams are open, the most this service takes")
+        state.metrics.streams_refused.labels("full").inc()
         return
     try:
         try:

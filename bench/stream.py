@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import httpx
 import numpy as np
@@ -35,6 +37,7 @@ SEVEN_SCENES = Path(__file__).resolve().parents[2] / "shared/data/7scenes-redkit
 TEST_FRAMES = range(850, 1000)
 #: 7-Scenes' depth camera: the sensor's own depth is moved with it.
 KINECT_DEPTH = Intrinsics(fx=585.0, fy=585.0, cx=320.0, cy=240.0, width=640, height=480)
+T = TypeVar("T")
 
 
 @dataclass
@@ -54,7 +57,7 @@ class Run:
 
     @property
     def fps(self) -> float:
-        return len(self.latencies) / self.seconds
+        return len(self.latencies) / self.seconds if self.seconds else 0.0
 
     def percentile(self, q: float) -> float:
         return float(np.percentile(self.latencies, q))
@@ -189,6 +192,28 @@ def temporally_filtered(depths: list[np.ndarray], alpha: float, delta: float) ->
     return [smoother.apply(depth.astype(np.float32)).astype(np.float64) for depth in depths]
 
 
+def played_live(url: str, frames: list[bytes], smooth: str, fps: float) -> tuple[list[int], list[np.ndarray]]:
+    """Frames 850-999 sent at ``fps`` as a camera sends them: the frames answered (indices) and their depth."""
+    answered: list[tuple[int, np.ndarray]] = []
+    with open_stream(url, depth_encoding="raw16", smooth=smooth) as ws:
+
+        def read() -> None:
+            while True:
+                header, (body,) = receive(ws)
+                answered.append((header["seq"] - 1, raw_depth(header["payloads"][0], body)))
+                if header["seq"] == len(frames):
+                    return
+
+        reader = threading.Thread(target=read)
+        reader.start()
+        start = time.perf_counter()
+        for i, frame in enumerate(frames):
+            time.sleep(max(0.0, start + i / fps - time.perf_counter()))
+            ws.send(frame)
+        reader.join()
+    return [i for i, _ in answered], [d for _, d in answered]
+
+
 def flicker_row(label: str, depths: list[np.ndarray], poses, k: Intrinsics, floor, sensor) -> str:
     served = sequence_flicker(depths, poses, k)
     scores = MetricAccumulator()
@@ -211,6 +236,14 @@ def flicker_rows(url: str, frames: list[bytes]) -> list[str]:
     smoothed, _ = played(url, frames, "temporal")
     rows.append(flicker_row("served, smooth=off", plain, poses, k, floor, sensor))
     rows.append(flicker_row("served, smooth=temporal (alpha 0.4, delta 5%)", smoothed, poses, k, floor, sensor))
+    at_sensor = [np.where(s > 0, d, 0.0) for d, s in zip(plain, sensor, strict=True)]
+    label = "served, smooth=off, moved with the sensor's camera at the sensor's pixels"
+    rows.append(flicker_row(label, at_sensor, poses, KINECT_DEPTH, floor, sensor))
+    for smooth in ("off", "temporal"):
+        kept, depths = played_live(url, frames, smooth, 30)
+        label = f"served at 30 fps as a camera sends, smooth={smooth} ({len(kept)} of 150 answered)"
+        chosen = [sensor[i] for i in kept]
+        rows.append(flicker_row(label, depths, [poses[i] for i in kept], k, floor, chosen))
     for weight in (0.5, 0.3):
         label = f"lever: scale stabiliser, new median weighted {weight}"
         rows.append(flicker_row(label, scale_stabilised(plain, weight), poses, k, floor, sensor))
@@ -218,6 +251,59 @@ def flicker_rows(url: str, frames: list[bytes]) -> list[str]:
         label = f"lever: temporal filter, alpha {alpha}, delta {delta:.0%}"
         rows.append(flicker_row(label, temporally_filtered(plain, alpha, delta), poses, k, floor, sensor))
     return rows
+
+
+def bag_rows(url: str, frames: int = 150) -> list[str]:
+    """A 640x480 ROS 2 bag recording (7-Scenes frames 850-999, colour and depth) through ``rgb2cloud stream``'s
+    own loop, to a bag and to nowhere, taking turns twice each (the best of each kept), at point strides 1
+    and 2: frames/s and what writing the bag costs."""
+    from harness.recordings import write_aligned_bag
+
+    pairs = []
+    for n in list(TEST_FRAMES)[:frames]:
+        rgb = np.asarray(Image.open(SEVEN_SCENES / f"frame-{n:06d}.color.jpg"))
+        mm = np.asarray(Image.open(SEVEN_SCENES / f"frame-{n:06d}.depth.png"))
+        pairs.append((rgb, np.where(mm == 65535, 0, mm).astype(np.uint16)))
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        recording = write_aligned_bag(Path(tmp) / "recording", "mcap", pairs)
+        for stride in (1, 2):
+            rates: dict[bool, list[float]] = {False: [], True: []}
+            for run, to_bag in enumerate((False, True, False, True)):
+                rates[to_bag].append(streamed_to(url, recording, Path(tmp) / f"{stride}-{run}", to_bag, stride))
+            nowhere, bag = max(rates[False]), max(rates[True])
+            what = "all five topics" if stride == 1 else f"point stride {stride}"
+            rows.append(f"| to nowhere, point stride {stride} (answers decoded, nothing written) | {nowhere:.1f} | |")
+            rows.append(f"| to a ROS 2 bag, {what} | {bag:.1f} | {1 - bag / nowhere:.0%} |")
+    return rows
+
+
+def streamed_to(url: str, recording: Path, scratch: Path, to_bag: bool, stride: int) -> float:
+    """Frames/s of ``rgb2cloud stream``'s loop from ``recording``, writing a bag with every topic or nothing."""
+    from cli.stream import Outputs, run_stream
+    from recordings.formats import ReadOptions
+    from recordings.ros2_bag import DepthBag, Topics
+    from recordings.sources import stream_source
+
+    source = stream_source(str(recording), None, ReadOptions(max_frames=None), scratch)
+    bag = DepthBag(scratch / "bag", Topics(), source.frame_id) if to_bag else None
+    started = time.perf_counter()
+    written, _ = run_stream(source, url, Outputs(None, False, bag, True, True), {"stride": stride}, False)
+    rate = written / (time.perf_counter() - started)
+    if bag is not None:
+        bag.close()
+    return rate
+
+
+def closed(url: str, result: T) -> T:
+    """``result``, once the service has let go of every stream (the next row may open as many as it allows)."""
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        text = httpx.get(f"{url}/metrics", timeout=5).text
+        if "\nrgb2cloud_streams_open 0.0" in text:
+            break
+        time.sleep(0.05)
+    return result
 
 
 def speed_row(label: str, run: Run) -> str:
@@ -233,6 +319,7 @@ def main() -> None:
     parser.add_argument("--fps", type=float, default=30, help="the camera rows' frame rate")
     parser.add_argument("--soak-frames", type=int, default=5000, help="frames sent while RSS is watched")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--bag-only", action="store_true", help="only the rows streaming a recording to a bag")
     args = parser.parse_args()
     frames = jpegs()
     count = int(args.seconds * args.fps)
@@ -240,12 +327,16 @@ def main() -> None:
     with running_service(threads=str(args.threads), precision="fp32", **env) as service:
         url = service.url
         lockstep(url, frames[:10], 2)  # warm
+        bags = closed(url, bag_rows(url))
+        if args.bag_only:
+            print_bag_rows(bags)
+            return
         post_run = posts(url, frames, args.seconds)
-        step_run = lockstep(url, frames, args.seconds)
-        png_run = camera(url, frames, args.fps, count)
-        raw_run = camera(url, frames, args.fps, count, depth_encoding="raw16")
-        four = cameras(url, frames, args.fps, count, 4)
-        flicker = flicker_rows(url, frames)
+        step_run = closed(url, lockstep(url, frames, args.seconds))
+        png_run = closed(url, camera(url, frames, args.fps, count))
+        raw_run = closed(url, camera(url, frames, args.fps, count, depth_encoding="raw16"))
+        four = closed(url, cameras(url, frames, args.fps, count, 4))
+        flicker = closed(url, flicker_rows(url, frames))
         rss, soak = rss_series(url, service.pid, frames, args.fps, args.soak_frames)
     report(args, post_run, step_run, png_run, raw_run, four)
     print(f"\nRSS MB every {args.soak_frames // 10} of {args.soak_frames} frames at {args.fps:g} fps")
@@ -253,17 +344,19 @@ def main() -> None:
     print("\n| depth, frames 850-999 as a stream | flicker (mean relative) | against the sensor | scale jitter | δ1 |")
     print("|---|---|---|---|---|")
     print("\n".join(flicker))
+    print_bag_rows(bags)
+
+
+def print_bag_rows(rows: list[str]) -> None:
+    print("\n| a 640x480 ROS 2 bag recording streamed | frames/s | writing's cost |\n|---|---|---|")
+    print("\n".join(rows))
 
 
 def report(args: argparse.Namespace, post_run: Run, step_run: Run, png_run: Run, raw_run: Run, four: list[Run]):
     """The speed table, and the issue's three ratios: stream against the work's rate, POST, and p95 / work."""
-    work = statistics.median(step_run.work)
-    generator = statistics.median(step_run.inference)
     print(f"Machine: {cpu_description()}; service threads {args.threads}; frames 640x480 JPEG\n")
-    print("| client | answers/s | p50 ms | p95 ms | work ms (median) | frames skipped |")
+    print("| client | answers/s | p50 ms | p95 ms | service ms per frame (median) | frames skipped |")
     print("|---|---|---|---|---|---|")
-    print(f"| the generator alone (its stage in the headers) | {1000 / generator:.1f} | | | {generator:.0f} | |")
-    print(f"| the per-frame work, 1 / (decode + inference + encode) | {1000 / work:.1f} | | | {work:.0f} | |")
     print(speed_row("POST /depth back to back", post_run))
     print(speed_row("stream, lockstep, png16", step_run))
     print(speed_row(f"stream, camera at {args.fps:g} fps, png16", png_run))
@@ -274,10 +367,17 @@ def report(args: argparse.Namespace, post_run: Run, step_run: Run, png_run: Run,
         merged.work += run.work
     merged.seconds = len(merged.latencies) / sum(run.fps for run in four)
     print(speed_row(f"4 streams, each a camera at {args.fps:g} fps (answers/s: all four)", merged))
-    own = statistics.median(png_run.work)  # the camera row's own frames, as their headers report them
-    print(f"\nOne stream (camera, png16) against its per-frame work's rate, 1000 / {own:.0f} ms: ", end="")
-    print(f"{png_run.fps / (1000 / own):.0%}; against POST back to back: {png_run.fps / post_run.fps:.2f}x; ")
-    print(f"its p95 against its per-frame work: {png_run.percentile(95) / own:.2f}x")
+    print("\nEach row against its own per-frame work (decode + inference + encode, from its own headers):\n")
+    print("| client | per-frame work ms | its rate, 1000 / work | answers/s | share of that rate | p95 / work |")
+    print("|---|---|---|---|---|---|")
+    rows = (("POST /depth back to back", post_run), ("stream, lockstep", step_run), ("stream, camera", png_run))
+    for label, run in rows:
+        own = statistics.median(run.work)
+        share, p95 = run.fps / (1000 / own), run.percentile(95) / own
+        print(f"| {label} | {own:.0f} | {1000 / own:.1f} | {run.fps:.1f} | {share:.0%} | {p95:.2f}x |")
+    generator = statistics.median(png_run.inference)
+    print(f"\nThe generator alone (the camera row's inference stage): {generator:.0f} ms, {1000 / generator:.1f}/s.")
+    print(f"One stream (camera) against POST back to back: {png_run.fps / post_run.fps:.2f}x.")
 
 
 if __name__ == "__main__":

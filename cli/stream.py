@@ -11,7 +11,9 @@ serving install may hold: the service's client and the recordings' readers.
 from __future__ import annotations
 
 import itertools
+import queue
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,13 +62,13 @@ class Outputs:
         if self.bag is not None:
             k = Intrinsics(**header["intrinsics"])
             stamp, bag, topics = frame.stamp_ns, self.bag, self.bag.topics
-            bag.depth_image(topics.depth, stamp, metres)
-            bag.camera_info(topics.depth_info, stamp, k)
+            bag.depth_image(topics["depth"], stamp, metres)
+            bag.camera_info(topics["depth_info"], stamp, k)
             bag.point_cloud(stamp, xyz, rgb)
             if self.with_colour:
                 bag.colour(stamp, frame.data, k)
             if self.with_sensor_depth and (sensor := frame.sensor_metres()) is not None:
-                bag.depth_image(topics.sensor_depth, stamp, sensor)
+                bag.depth_image(topics["sensor_depth"], stamp, sensor)
             bag.frames += 1
 
 
@@ -93,26 +95,62 @@ def run_stream(source: Any, url: str, outputs: Outputs, given: dict[str, Any], o
     if first is None:
         return 0, 0
     frames = itertools.chain([first], frames)
-    written = refused = 0
+    refused = 0
     bar = tqdm(desc="stream", unit="frame", mininterval=1.0)
     started = time.perf_counter()
     try:
         socket = open_stream(url, **stream_options(first, given))
     except InvalidHandshake as e:
         raise UserError(f"{url}: the service refused the stream: {e}") from None
-    with socket:
-        for answer in answers(socket, frames, lambda f: f.data, source.live):
-            bar.update(1)
-            if answer.error is not None:
-                refused += 1
-                tqdm.write(f"{answer.item.name}: {answer.error}")
-                continue
-            outputs.write(answer.item, answer.header, answer.payloads)
-            written += 1
-            rate = written / max(1e-9, time.perf_counter() - started)
-            bar.set_postfix(fps=f"{rate:.1f}", skipped=answer.header["skipped"], refresh=False)
-    bar.close()
-    return written, refused
+    writer = Writer(outputs)
+    try:
+        with socket:
+            for answer in answers(socket, frames, lambda f: f.data, source.live):
+                bar.update(1)
+                if answer.error is not None:
+                    refused += 1
+                    tqdm.write(f"{answer.item.name}: {answer.error}")
+                    continue
+                writer.put(answer)
+                rate = writer.written / max(1e-9, time.perf_counter() - started)
+                bar.set_postfix(fps=f"{rate:.1f}", skipped=answer.header["skipped"], refresh=False)
+    finally:
+        writer.finish()
+        bar.close()
+    return writer.written, refused
+
+
+class Writer:
+    """Writes answers in a thread of its own, in order, so the next answers are read (and the service kept
+    busy) while a frame's files and bag messages go to disk. ``finish`` writes what is queued and stops;
+    after Ctrl-C too, so each frame is written whole or not at all."""
+
+    def __init__(self, outputs: Outputs, depth: int = 8):
+        self.outputs, self.written = outputs, 0
+        self._queue: queue.Queue = queue.Queue(maxsize=depth)
+        self._failure: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while (answer := self._queue.get()) is not None:
+            if self._failure is None:
+                try:
+                    self.outputs.write(answer.item, answer.header, answer.payloads)
+                    self.written += 1
+                except BaseException as e:  # a full disk: raised where answers are read
+                    self._failure = e
+
+    def put(self, answer: Any) -> None:
+        if self._failure is not None:
+            raise self._failure
+        self._queue.put(answer)
+
+    def finish(self) -> None:
+        self._queue.put(None)
+        self._thread.join()
+        if self._failure is not None:
+            raise self._failure
 
 
 def stream(

@@ -31,9 +31,20 @@ FLOAT32 = 7
 POINT_STEP = 16
 
 
+#: Each message's topic under the namespace, as realsense-ros names its own.
+TOPICS = {
+    "depth": "aligned_depth_to_color/image_raw",
+    "depth_info": "aligned_depth_to_color/camera_info",
+    "points": "depth/color/points",
+    "colour": "color/image_raw/compressed",
+    "colour_info": "color/camera_info",
+    "sensor_depth": "sensor/aligned_depth_to_color/image_raw",
+}
+
+
 @dataclass(frozen=True)
 class Topics:
-    """Where each message goes, realsense-ros's names under ``namespace``."""
+    """Where each message goes: ``TOPICS`` under ``namespace`` (``/camera/aligned_depth_to_color/image_raw``)."""
 
     namespace: str = "/camera"
 
@@ -41,29 +52,8 @@ class Topics:
         if not self.namespace.startswith("/") or self.namespace.endswith("/"):
             raise UserError(f"--namespace {self.namespace!r}: a ROS name starts with / and does not end with one")
 
-    @property
-    def depth(self) -> str:
-        return f"{self.namespace}/aligned_depth_to_color/image_raw"
-
-    @property
-    def depth_info(self) -> str:
-        return f"{self.namespace}/aligned_depth_to_color/camera_info"
-
-    @property
-    def points(self) -> str:
-        return f"{self.namespace}/depth/color/points"
-
-    @property
-    def colour(self) -> str:
-        return f"{self.namespace}/color/image_raw/compressed"
-
-    @property
-    def colour_info(self) -> str:
-        return f"{self.namespace}/color/camera_info"
-
-    @property
-    def sensor_depth(self) -> str:
-        return f"{self.namespace}/sensor/aligned_depth_to_color/image_raw"
+    def __getitem__(self, kind: str) -> str:
+        return f"{self.namespace}/{TOPICS[kind]}"
 
 
 def packed_rgb(rgb: np.ndarray) -> np.ndarray:
@@ -163,7 +153,7 @@ class DepthBag:
             data=records.view(np.uint8).ravel(),
             is_dense=True,
         )
-        self._put(self.topics.points, "sensor_msgs/msg/PointCloud2", stamp_ns, message)
+        self._put(self.topics["points"], "sensor_msgs/msg/PointCloud2", stamp_ns, message)
 
     def colour(self, stamp_ns: int, encoded: bytes, k: Intrinsics) -> None:
         """The photo as it was sent (JPEG or PNG), and its camera."""
@@ -171,5 +161,5 @@ class DepthBag:
         message = self.store.types["sensor_msgs/msg/CompressedImage"](
             header=self._header(stamp_ns), format=kind, data=np.frombuffer(encoded, np.uint8)
         )
-        self._put(self.topics.colour, "sensor_msgs/msg/CompressedImage", stamp_ns, message)
-        self.camera_info(self.topics.colour_info, stamp_ns, k)
+        self._put(self.topics["colour"], "sensor_msgs/msg/CompressedImage", stamp_ns, message)
+        self.camera_info(self.topics["colour_info"], stamp_ns, k)

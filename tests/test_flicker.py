@@ -41,12 +41,16 @@ def test_a_point_moves_across_the_image_by_the_focal_length_times_the_baseline_o
     assert (row, col) == (15, 10) and moved[15, 10] == pytest.approx(2.0)
 
 
-def test_the_nearest_surface_wins_where_two_land_on_one_pixel():
+@pytest.mark.parametrize("step", [0.1, -0.1])
+def test_the_nearest_surface_wins_where_two_land_on_one_pixel(step):
+    """A near point (1 m) shifts 100 x 0.1 / 1 = 10 px and a far one (2 m) 5 px, so the two land on one pixel;
+    stepping right the far one comes first in the scan, stepping left the near one: either way the near wins."""
     depth = np.zeros((30, 40))
-    depth[15, 20], depth[15, 30] = 2.0, 1.0  # 10 px apart at different depths
-    # Moved 0.1 m right: the near one shifts 10 px (to 20) and lands on the far one's spot, which shifts 5.
-    moved = moved_depth(depth, pose(), pose(x=0.1), K)
-    assert moved[15, 20] == pytest.approx(1.0) and moved[15, 15] == pytest.approx(2.0)
+    far, near = (25, 30) if step > 0 else (20, 15)
+    depth[15, far], depth[15, near] = 2.0, 1.0
+    moved = moved_depth(depth, pose(), pose(x=step), K)
+    (col,) = {far - round(step * 50), near - round(step * 100)}  # both arrive at the same column
+    assert np.count_nonzero(moved) == 1 and moved[15, col] == pytest.approx(1.0)
 
 
 def test_a_steady_scale_error_is_no_flicker_but_one_that_changes_is():

@@ -25,7 +25,9 @@ import httpx
 import pytest
 from conftest import REPO, TUM_FRAME, run_cli
 from PIL import Image
+from websockets.exceptions import InvalidStatus
 
+from app.stream_client import open_stream, receive
 from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, load_card, publish
 from harness.service import ServiceProcess, free_port, resident_mb
 
@@ -170,6 +172,20 @@ def drained(replica: ServiceProcess) -> bool:
 def replace(replicas: list[ServiceProcess], index: int, registry: Path, **env: str) -> None:
     """Start a replica again on the same port, and wait until it is ready."""
     replicas[index] = ServiceProcess(replicas[index].port, registry=str(registry), **{**REPLICA, **env}).wait_ready()
+
+
+def test_a_stream_opens_through_the_balancer_from_its_own_page(cluster):
+    """The WebSocket upgrade passes nginx, and the page the balancer serves is the stream's own origin."""
+    _, balancer = cluster
+    photo = (TUM_FRAME / "TUM_color.png").read_bytes()
+    with open_stream(balancer.url, origin=balancer.url, depth_encoding="raw16") as ws:
+        for _ in range(3):
+            ws.send(photo)
+            header, (body,) = receive(ws)
+            assert header["type"] == "frame" and len(body) == 2 * 640 * 480
+    with pytest.raises(InvalidStatus) as refused:
+        open_stream(balancer.url, origin="https://evil.example")
+    assert refused.value.response.status_code == 403
 
 
 def test_a_replica_killed_mid_load_loses_no_request(cluster, registry):

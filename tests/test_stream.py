@@ -7,6 +7,7 @@ the same photo: the PNG decoded by Pillow, the PLY read by plyfile.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import socket
@@ -122,6 +123,8 @@ def test_png_and_ply_payloads_and_options_changed_mid_stream(service):
             (json.dumps({"min_depth": 3, "max_depth": 2}), 422, "min_depth (3.0) is greater than max_depth"),
             (json.dumps({"colour": "red"}), 422, "colour: Extra inputs are not permitted"),
             (json.dumps({"model": "nope"}), 404, "nope"),
+            ("[" * 100_000, 400, "JSON object"),  # nested past the parser's depth
+            ('{"fx": ' + "9" * 5000 + "}", 400, "JSON object"),  # an integer too long to convert
         ]:
             ws.send(bad)
             error, _ = receive(ws)
@@ -158,9 +161,18 @@ def test_a_bad_frame_mid_stream_gets_its_own_error_and_the_stream_goes_on(servic
         assert header["type"] == "frame" and header["seq"] == 6
 
 
+def send_as_a_camera(ws, count: int, fps: float, sent: dict[int, float]) -> None:
+    """``count`` frames at ``fps`` whatever the answers do; each frame's send time by its number."""
+    start = time.perf_counter()
+    for seq in range(1, count + 1):
+        time.sleep(max(0.0, start + (seq - 1) / fps - time.perf_counter()))
+        sent[seq] = time.perf_counter()
+        ws.send(FRAMES[seq % len(FRAMES)])
+
+
 def test_the_latest_frame_wins_and_latency_stays_flat(service):
-    """100 frames sent as fast as the socket takes them: the service answers the freshest it holds each
-    time, so it skips frames, and no answer waits longer than about two frames' work."""
+    """100 frames at 60 fps, several times what the model answers on 2 cores: the service answers the freshest
+    frame it holds each time, so it skips frames, and the last answers wait no longer than the first."""
     sent: dict[int, float] = {}
     answers: list[tuple[dict, float]] = []
     with open_stream(service, depth_encoding="raw16") as ws:
@@ -174,20 +186,19 @@ def test_the_latest_frame_wins_and_latency_stays_flat(service):
 
         reader = threading.Thread(target=read)
         reader.start()
-        for seq in range(1, 101):
-            sent[seq] = time.perf_counter()
-            ws.send(FRAMES[seq % len(FRAMES)])
+        send_as_a_camera(ws, 100, 60, sent)
         reader.join(timeout=120)
     assert not reader.is_alive(), "the answer to the last frame never came"
     seqs = [header["seq"] for header, _ in answers]
     assert all(header["type"] == "frame" for header, _ in answers)
-    assert seqs == sorted(seqs) and seqs[-1] == 100 and len(seqs) < 50, seqs
-    final = answers[-1][0]
-    assert final["skipped"] == 100 - len(seqs), "every frame is either answered or counted as skipped"
-    work_ms = statistics.median(sum(h["stages_ms"].values()) for h, _ in answers)
+    assert seqs == sorted(seqs) and seqs[-1] == 100 and 5 < len(seqs) < 60, seqs
+    assert answers[-1][0]["skipped"] == 100 - len(seqs), "every frame is either answered or counted as skipped"
     latencies = [(at - sent[h["seq"]]) * 1000 for h, at in answers]
+    work_ms = statistics.median(sum(h["stages_ms"].values()) for h, _ in answers)
+    third = len(latencies) // 3
+    early, late = statistics.median(latencies[:third]), statistics.median(latencies[-third:])
+    assert late < 1.5 * early + 20, (early, late)  # flat: a queue would have grown by ~50 frames' work
     assert max(h["queued_ms"] for h, _ in answers) < 3 * work_ms
-    assert max(latencies) < 4 * work_ms, (latencies, work_ms)
     text = httpx.get(f"{service}/metrics", timeout=5).text
     assert 'rgb2cloud_stream_frames_total{outcome="skipped"}' in text
 
@@ -241,6 +252,10 @@ def test_a_client_that_vanishes_mid_frame_leaves_the_service_healthy(service):
         ws.send(FRAMES[0])
     wait_streams_closed(service)
     assert httpx.get(f"{service}/readyz", timeout=5).status_code == 200
+    deadline = time.monotonic() + 10  # the vanished client's frame finishes, and frees its place
+    while metric(service, "rgb2cloud_inference_in_flight") + metric(service, "rgb2cloud_inference_queued") > 0:
+        assert time.monotonic() < deadline
+        time.sleep(0.1)
     post(service, "/depth", FRAMES[0])
     with open_stream(service) as ws:
         ws.send(FRAMES[1])
@@ -248,37 +263,49 @@ def test_a_client_that_vanishes_mid_frame_leaves_the_service_healthy(service):
 
 
 def test_a_post_is_answered_while_four_streams_are_busy(service):
+    """Four cameras at 30 fps, each stream always holding a frame for the pool: a POST still gets its turn,
+    behind at most one frame of each stream."""
     wait_streams_closed(service)
     stop = threading.Event()
     answered = [0] * MAX_STREAMS
 
     def busy(index: int) -> None:
         with open_stream(service, depth_encoding="raw16") as ws:
+
+            def read() -> None:
+                with contextlib.suppress(ConnectionClosed):
+                    while True:
+                        receive(ws)
+                        answered[index] += 1
+
+            reader = threading.Thread(target=read)
+            reader.start()
             while not stop.is_set():
                 ws.send(FRAMES[index])
-                receive(ws)
-                answered[index] += 1
+                time.sleep(1 / 30)
+        reader.join(timeout=30)
 
     threads = [threading.Thread(target=busy, args=(i,)) for i in range(MAX_STREAMS)]
     for thread in threads:
         thread.start()
     try:
-        time.sleep(1.0)
+        deadline = time.monotonic() + 60
+        while not all(answered) and time.monotonic() < deadline:  # every stream is being answered
+            time.sleep(0.05)
         before = list(answered)
-        started = time.perf_counter()
         response = post(service, "/depth", FRAMES[5])
-        waited = time.perf_counter() - started
+        after = list(answered)
         with Image.open(io.BytesIO(response.content)) as im:
             assert im.size == (640, 480)
-        after = list(answered)
     finally:
         stop.set()
         for thread in threads:
             thread.join(timeout=60)
-    assert all(b > 0 for b in before), "every stream was answered before the POST"
-    # The POST waited behind at most one job per stream, as each stream holds at most one in the pool.
+    assert all(before), "every stream was answered before the POST"
+    # Each stream holds one frame in the pool at most, so the POST waited behind about one frame each.
     frames_meanwhile = sum(a - b for a, b in zip(after, before, strict=True))
-    assert frames_meanwhile <= 2 * MAX_STREAMS, (frames_meanwhile, waited)
+    assert frames_meanwhile <= 3 * MAX_STREAMS, frames_meanwhile
+    assert metric(service, "rgb2cloud_inference_queued") == 0
 
 
 @pytest.mark.parametrize(
@@ -317,3 +344,21 @@ def test_smooth_temporal_blends_each_frame_with_the_last_where_they_agree(servic
     clear = np.abs(np.abs(second - first) - 0.05 * first) > 0.0011
     assert 0.2 < agree.mean() < 1.0 and clear.mean() > 0.95
     assert np.abs(answers[1] - expected)[clear].max() <= 0.0015
+
+
+@pytest.mark.parametrize(
+    ("origin", "host", "allowed", "opens"),
+    [
+        ("http://127.0.0.1:8000", "127.0.0.1:8000", [], True),  # the service's own page, at its address
+        ("http://[::1]:8000", "[::1]:8000", [], True),
+        ("http://localhost:8000", "localhost:8000", [], True),
+        ("http://127.0.0.1:8000", "127.0.0.1:9000", [], False),  # another port is another origin
+        ("http://rebound.example:8000", "rebound.example:8000", [], False),  # a name someone could re-point
+        ("http://rebound.example:8000", "rebound.example:8000", ["http://rebound.example:8000"], True),
+        ("https://evil.example", "127.0.0.1:8000", ["*"], True),
+    ],
+)
+def test_which_origins_may_open_a_stream(origin, host, allowed, opens):
+    from app.stream import origin_allowed
+
+    assert origin_allowed(origin, host, allowed) is opens

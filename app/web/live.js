@@ -1,13 +1,11 @@
 // Live mode: the webcam's frames over WebSocket /v1/stream, its depth and point cloud back for each.
 //
-// The page sends JPEGs at the camera's rate but holds back a frame while two are unanswered (one being
-// worked on, one waiting), so it never queues more than the service would skip anyway; the service
-// answers the freshest frame it holds. The model, focal length and stride controls change the open
+// The page sends JPEGs at the camera's rate, holding one back only while the socket is still sending
+// the last; the service keeps the freshest frame it holds and answers that, counting those it skipped. The model, focal length and stride controls change the open
 // stream with a JSON message. Uses page.js's API, $, say and fail.
 "use strict";
 
 const LIVE_FPS = 30;
-const LIVE_IN_FLIGHT = 2;
 const LIVE_JPEG_QUALITY = 0.85;
 
 class LiveStream {
@@ -40,7 +38,10 @@ class LiveStream {
     this.socket.binaryType = "arraybuffer";
     this.socket.onmessage = (event) => this.#receive(event.data);
     this.socket.onclose = (event) => {
-      if (!this.stopped) fail(`The stream closed: ${event.reason || `code ${event.code}`}.`);
+      if (!this.stopped) {
+        fail(`The stream closed: ${event.reason || `code ${event.code}`}.`);
+        endLive();
+      }
       this.stop();
     };
     await new Promise((resolve, reject) => {
@@ -48,7 +49,8 @@ class LiveStream {
       this.socket.onerror = () => reject(new Error("the service refused the stream, or cannot be reached"));
     });
     $("live-view").hidden = false;
-    this.viewer = this.viewer || new CloudViewer($("live-cloud"));
+    liveViewer = liveViewer || new CloudViewer($("live-cloud")); // one viewer for the canvas, however often live starts
+    this.viewer = liveViewer;
     this.timer = setInterval(() => this.#capture(), 1000 / LIVE_FPS);
   }
 
@@ -67,7 +69,9 @@ class LiveStream {
 
   #capture() {
     if (this.socket.readyState !== WebSocket.OPEN || !this.video.videoWidth) return;
-    if (this.encoding || this.sent - this.lastSeq >= LIVE_IN_FLIGHT) {
+    // Every camera frame goes out as it comes, so the service always answers the freshest; only a frame
+    // the socket has not yet sent the last one for (a slow link) is held back here.
+    if (this.encoding || this.socket.bufferedAmount > 0) {
       this.heldBack++;
       return;
     }
@@ -110,7 +114,7 @@ class LiveStream {
 
   #show(header, payloads) {
     const now = performance.now();
-    this.lastSeq = header.seq;
+    this.lastSeq = Math.max(this.lastSeq, header.seq);
     this.latencies = [...this.latencies.slice(-29), now - this.sentAt.get(header.seq)];
     for (const seq of this.sentAt.keys()) if (seq <= header.seq) this.sentAt.delete(seq);
     this.answers = [...this.answers.filter((t) => now - t < 2000), now];
@@ -188,12 +192,17 @@ function liveOptions() {
 }
 
 let live = null;
+let liveViewer = null;
+
+function endLive() {
+  if (live) live.stop();
+  live = null;
+  $("live").textContent = "Live: start the camera";
+}
 
 $("live").addEventListener("click", async () => {
   if (live) {
-    live.stop();
-    live = null;
-    $("live").textContent = "Live: start the camera";
+    endLive();
     say("Live stopped.");
     return;
   }
@@ -204,9 +213,7 @@ $("live").addEventListener("click", async () => {
     await live.start();
     say("Live: streaming the camera.");
   } catch (error) {
-    live.stop();
-    live = null;
-    $("live").textContent = "Live: start the camera";
+    endLive();
     fail(`Live mode could not start: ${error.message}`);
   }
 });
