@@ -19,6 +19,9 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
 T = TypeVar("T")
+#: How long one payload of an answer may take to arrive once its header has: a full-resolution cloud is
+#: 4.6 MB, seconds on a slow link.
+PAYLOAD_TIMEOUT_S = 120
 
 
 def stream_url(service_url: str, **options: Any) -> str:
@@ -92,7 +95,8 @@ def answers(
     answer stands for every frame sent before it. A sender thread feeds a live stream while answers
     are read here; stopping the generator (Ctrl-C) closes the stream.
     """
-    sent: dict[int, T] = {}
+    sent: dict[int, T] = {}  # the frames not answered yet, by number: each is dropped once answered
+    count, ended = [0], threading.Event()  # how many were sent; set once the source has no more
     done = threading.Event()
     window = threading.Semaphore(in_flight)
     failure: list[BaseException] = []
@@ -107,31 +111,35 @@ def answers(
                 data = encode(item)
                 sent[seq] = item
                 socket.send(data)
-            sent[0] = None  # type: ignore[assignment]  # the end: no more frames
+                count[0] = seq
         except ConnectionClosed:
             return
         except BaseException as e:  # a source that fails mid-way: reported where answers are read
             failure.append(e)
-            sent[0] = None  # type: ignore[assignment]
+        finally:
+            ended.set()
 
     sender = threading.Thread(target=send_all, daemon=True)
     sender.start()
     last = 0
     try:
-        while True:
-            if 0 in sent and last >= len(sent) - 1:
-                break
-            try:
-                header, bodies = receive(socket, timeout=0.5)
+        while not (ended.is_set() and last >= count[0]):
+            try:  # only the wait for a header is short: an answer's payloads may take long on a slow link
+                text = socket.recv(timeout=0.5)
             except TimeoutError:
                 continue
+            header = json.loads(text)
+            bodies = [socket.recv(timeout=PAYLOAD_TIMEOUT_S) for _ in header.get("payloads", [])]
             seq = header.get("seq")
             if seq is None:
                 raise StreamRefused(f"the service refused the stream's options: {header.get('detail')}")
+            item = sent.pop(seq)
+            for earlier in range(last + 1, seq):  # skipped by the service: they get no answer
+                sent.pop(earlier, None)
             last = seq
             window.release()
             kinds = {entry["kind"]: body for entry, body in zip(header.get("payloads", []), bodies, strict=True)}
-            yield Answer(sent[seq], header, kinds)
+            yield Answer(item, header, kinds)
         if failure:
             raise failure[0]
     finally:

@@ -89,7 +89,7 @@ def run_stream(source: Any, url: str, outputs: Outputs, given: dict[str, Any], o
     from app.stream_client import answers, open_stream
 
     frames = source.frames
-    if not source.live and outputs.out is not None and not overwrite:
+    if not source.live and outputs.out is not None and outputs.bag is None and not overwrite:
         frames = (f for f in frames if not all(p.exists() for p in outputs.paths(f.name)))
     first = next(frames, None)
     if first is None:
@@ -172,6 +172,9 @@ def stream(
     max_depth: Annotated[float, typer.Option(help="point clouds: drop points farther (m)")] = 100.0,
     smooth: Annotated[str, typer.Option(help="off | temporal (docs/api.md#streams)")] = "off",
     format: Annotated[str | None, typer.Option(help="the recording's format, where it cannot be told")] = None,
+    color_topic: Annotated[str | None, typer.Option(help="a bag's colour image topic (default: found)")] = None,
+    depth_topic: Annotated[str | None, typer.Option(help="a bag's depth image topic (default: found)")] = None,
+    max_gap_ms: Annotated[float | None, typer.Option(help="a bag's colour and depth pairing window")] = None,
     overwrite: Annotated[bool, typer.Option(help="--out: redo frames whose files exist")] = False,
 ) -> None:
     """Stream frames through a running service; write depth and point clouds to a folder or a ROS 2 bag."""
@@ -187,7 +190,14 @@ def stream(
         raise UserError("nothing to write: give --out DIR and/or --bag DIR")
     given = {"model": model, "fx": fx, "stride": stride, "max_depth": max_depth, "smooth": smooth}
     with tempfile.TemporaryDirectory(prefix="rgb2cloud-stream-") as scratch:
-        found = stream_source(source, format, ReadOptions(max_frames=None), Path(scratch))
+        gap = None if max_gap_ms is None else max_gap_ms / 1000
+        options = ReadOptions(color_topic=color_topic, depth_topic=depth_topic, max_gap_s=gap, max_frames=None)
+        found = stream_source(source, format, options, Path(scratch))
+        if with_sensor_depth and not found.registered:
+            raise UserError(
+                f"{source}: --with-sensor-depth needs depth registered to colour (bags, Kinect and phone "
+                "recordings); this source's depth is as its sensor took it"
+            )
         if out is not None:
             out.mkdir(parents=True, exist_ok=True)
         writer = DepthBag(bag, Topics(namespace), found.frame_id) if bag is not None else None

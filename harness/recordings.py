@@ -156,16 +156,23 @@ class BagWriter:
 
 
 def write_aligned_bag(
-    path: Path, kind: str, frames, colour: str = "rgb8", depth: str = "16UC1", info: Intrinsics | None = None
+    path: Path,
+    kind: str,
+    frames,
+    colour: str = "rgb8",
+    depth: str = "16UC1",
+    info: Intrinsics | None = None,
+    start: float = 100.0,
 ) -> Path:
-    """A realsense-ros style recording: colour, depth aligned to colour, a CameraInfo each; 30 fps, 3 ms apart.
+    """A realsense-ros style recording: colour, depth aligned to colour, a CameraInfo each; 30 fps, 3 ms apart,
+    from ``start`` seconds.
 
     The CameraInfo is mOSD's camera at the frames' size, or ``info`` (a driver's camera of another size).
     """
     k = info or MOSD_CAMERA.resized(frames[0][0].shape[1], frames[0][0].shape[0])
     with BagWriter(path, kind) as bag:
         for i, (rgb, mm) in enumerate(frames):
-            t = 100.0 + i / 30
+            t = start + i / 30
             if colour == "jpeg":
                 bag.jpeg("/camera/color/image_raw/compressed", t, rgb)
             else:

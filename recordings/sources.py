@@ -20,7 +20,7 @@ from PIL import Image
 
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from recordings.formats import ReadOptions, detect_format, open_recording
+from recordings.formats import WRITTEN, ReadOptions, detect_format, open_recording
 from recordings.frames import read_depth_png
 
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".bmp", ".tif", ".tiff")
@@ -55,6 +55,9 @@ class Source:
     live: bool
     frame_id: str = DEFAULT_FRAME_ID
     description: str = ""
+    #: Whether the frames' sensor depth is registered to the photo (bags, Kinect and phone recordings are
+    #: read so; folders, TUM and 7-Scenes hold their depth as the sensor took it).
+    registered: bool = False
 
 
 def wall_ns() -> int:
@@ -139,7 +142,21 @@ def recording(root: Path, format: str | None, options: ReadOptions, scratch: Pat
         )
         for p in found.pairs
     )
-    return Source(frames, False, found.frame_id or DEFAULT_FRAME_ID, f"{found.format}, {len(found.pairs)} frames")
+    description = f"{found.format}, {len(found.pairs)} frames"
+    return Source(frames, False, found.frame_id or DEFAULT_FRAME_ID, description, found.format in WRITTEN)
+
+
+def is_depth_recording(path: Path) -> bool:
+    """A Matroska file with a DEPTH track is an Azure Kinect (or Orbbec) recording; any other is a video."""
+    if path.suffix.lower() != ".mkv":
+        return False
+    import av
+
+    try:
+        with av.open(str(path)) as container:
+            return any((s.metadata.get("title") or "").upper() == "DEPTH" for s in container.streams)
+    except av.error.FFmpegError:
+        return True  # damaged: the Kinect reader says what is wrong with it, in words
 
 
 def stream_source(source: str, format: str | None, options: ReadOptions, scratch: Path) -> Source:
@@ -149,11 +166,8 @@ def stream_source(source: str, format: str | None, options: ReadOptions, scratch
     path = Path(source)
     if not path.exists():
         raise UserError(f"{source}: no such file or folder")
-    if format is None and path.is_file() and path.suffix.lower() in VIDEO_SUFFIXES:
-        try:
-            format = detect_format(path)  # an Azure Kinect .mkv is a recording
-        except UserError:
-            return video(path)
+    if format is None and path.is_file() and path.suffix.lower() in VIDEO_SUFFIXES and not is_depth_recording(path):
+        return video(path)
     if format is None and path.is_dir() and not any(p.is_dir() for p in path.iterdir()):
         try:
             format = detect_format(path)

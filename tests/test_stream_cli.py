@@ -114,8 +114,10 @@ def test_a_ros2_bag_streams_with_its_stamps_camera_frame_and_sensor_depth(servic
         (np.asarray(Image.open(p).convert("RGB")), np.asarray(Image.open(MOSD / "depth" / f"{p.stem}.png")))
         for p in photos
     ]
-    source = write_aligned_bag(tmp_path / "recording", "mcap", frames)
+    # Stamps of today's size with odd nanoseconds: a float of seconds on the way would lose them.
+    source = write_aligned_bag(tmp_path / "recording", "mcap", frames, start=1_764_000_000.123456789)
     colour = read_bag(source)["/camera/color/image_raw"]
+    assert stamp_ns(colour[1][2]) % 1000 != 0
     out = tmp_path / "streamed"
     stream_cli(service, str(source), "--bag", str(out), "--with-colour", "--with-sensor-depth", "--namespace", "/cam")
     topics = read_bag(out)
@@ -134,6 +136,17 @@ def test_a_ros2_bag_streams_with_its_stamps_camera_frame_and_sensor_depth(servic
     first = depth[0][2]
     metres = np.frombuffer(first.data, dtype="<f4").reshape(first.height, first.width)
     np.testing.assert_array_equal(np.rint(np.nan_to_num(metres) * 1000), np.rint(served * 1000))
+    # The cloud, decoded from its bytes: xyz and the packed rgb are /pointcloud's points, in its order.
+    cloud = topics["/cam/depth/color/points"][0][2]
+    records = np.frombuffer(cloud.data, dtype="<f4").reshape(-1, 4)
+    params = {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy}
+    response = httpx.post(f"{service}/pointcloud", files={"image": photo.data.tobytes()}, params=params, timeout=60)
+    ply = PlyData.read(io.BytesIO(response.content))["vertex"]
+    assert cloud.width == ply.count == len(records)
+    np.testing.assert_array_equal(records[:, :3], np.stack([ply["x"], ply["y"], ply["z"]], axis=1))
+    packed = records[:, 3].copy().view("<u4")
+    unpacked = np.stack([(packed >> 16) & 255, (packed >> 8) & 255, packed & 255], axis=1)
+    np.testing.assert_array_equal(unpacked, np.stack([ply["red"], ply["green"], ply["blue"]], axis=1))
     sensor = topics["/cam/sensor/aligned_depth_to_color/image_raw"][0][2]
     sensor_m = np.frombuffer(sensor.data, dtype="<f4").reshape(480, 640)
     recorded = frames[0][1].astype(np.float64) / 1000
@@ -149,6 +162,8 @@ def test_a_folder_gives_png_and_ply_files_and_a_rerun_skips_them(service, tmp_pa
     out = tmp_path / "out"
     first = stream_cli(service, str(folder), "--out", str(out), "--pointcloud", "--stride", "2")
     assert "3 frames written" in first.stdout
+    by_time = sorted(out.glob("*.depth.png"), key=lambda f: f.stat().st_mtime_ns)
+    assert [f.name for f in by_time] == ["shot-0.depth.png", "shot-5.depth.png", "shot-10.depth.png"]
     for i, photo in enumerate(KITCHEN[:3]):
         with Image.open(out / f"shot-{i * 5}.depth.png") as im:
             assert im.mode in ("I;16", "I") and im.size == (640, 480)
@@ -164,6 +179,30 @@ def test_a_folder_gives_png_and_ply_files_and_a_rerun_skips_them(service, tmp_pa
     assert "0 frames written" in again.stdout
 
 
+def test_a_matroska_video_is_a_video_and_a_kinect_recording_is_a_recording(tmp_path):
+    from recordings.formats import ReadOptions
+    from recordings.sources import is_depth_recording, stream_source
+
+    with av.open(str(tmp_path / "clip.mkv"), "w") as container:
+        stream = container.add_stream("mpeg4", rate=30)
+        stream.width, stream.height, stream.pix_fmt = 640, 480, "yuv420p"
+        for photo in KITCHEN[:3]:
+            container.mux(stream.encode(av.VideoFrame.from_image(Image.open(photo).convert("RGB"))))
+        container.mux(stream.encode())
+    assert not is_depth_recording(tmp_path / "clip.mkv")
+    source = stream_source(str(tmp_path / "clip.mkv"), None, ReadOptions(max_frames=None), tmp_path / "scratch")
+    assert len(list(source.frames)) == 3 and not source.live
+    kinect = REPO.parent / "shared" / "data" / "captures"
+    recorded = sorted(kinect.rglob("*.mkv"))
+    assert recorded and is_depth_recording(recorded[0])  # the real Azure Kinect capture
+
+
+def interruptible() -> None:
+    """Ctrl-C as a terminal delivers it, even where this process was started with SIGINT ignored (a shell's
+    background job): Python installs its handler only where SIGINT is not ignored at startup."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_mid_stream_leaves_a_bag_that_reads(service, tmp_path):
     folder = tmp_path / "photos"
     folder.mkdir()
@@ -176,14 +215,22 @@ def test_ctrl_c_mid_stream_leaves_a_bag_that_reads(service, tmp_path):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=interruptible,
     )
-    time.sleep(6)  # well into the 150 frames (about 12 a second on 2 cores)
+    deadline = time.monotonic() + 120
+    while sum(f.stat().st_size for f in out.glob("*.mcap")) < 20_000_000:  # a few frames in (~6 MB each)
+        assert time.monotonic() < deadline and process.poll() is None, "the stream wrote nothing"
+        time.sleep(0.2)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 130, stderr
     assert "stopped (Ctrl-C)" in stderr and "Traceback" not in stderr
-    depth = read_bag(out)["/camera/aligned_depth_to_color/image_raw"]
+    topics = read_bag(out)
+    depth = topics["/camera/aligned_depth_to_color/image_raw"]
     assert 0 < len(depth) < 150
+    # Each frame whole or not at all: as many camera infos and clouds as depth images.
+    assert len(topics["/camera/aligned_depth_to_color/camera_info"]) == len(topics["/camera/depth/color/points"])
+    assert len(topics["/camera/depth/color/points"]) == len(depth)
 
 
 def test_bad_sources_and_options_are_one_line_errors(service, tmp_path):
@@ -192,6 +239,7 @@ def test_bad_sources_and_options_are_one_line_errors(service, tmp_path):
         ([str(tmp_path), "--out", str(tmp_path / "o")], "no photos"),
         ([str(KITCHEN[0].parent), "--bag", str(tmp_path / "b"), "--namespace", "camera"], "a ROS name starts with /"),
         ([str(KITCHEN[0].parent)], "nothing to write"),
+        ([str(KITCHEN[0].parent), "--bag", str(tmp_path / "s"), "--with-sensor-depth"], "needs depth registered"),
     ]:
         result = stream_cli(service, *args, check=False)
         assert result.returncode == 1 and says in result.stderr and "Traceback" not in result.stderr, result.stderr
@@ -221,6 +269,7 @@ def test_a_webcam_through_v4l2loopback(service, tmp_path):
             cwd=REPO,
             stderr=subprocess.PIPE,
             text=True,
+            preexec_fn=interruptible,
         )
         time.sleep(8)
         process.send_signal(signal.SIGINT)
