@@ -90,7 +90,7 @@ def test_auto_measures_both_engines_at_load_and_says_what_it_chose(reference):
         listed = httpx.get(f"{service.url}/v1/models", timeout=10).json()["models"]
         version = next(v for m in listed for v in m["versions"] if f"{m['name']}:{v['version']}" == MODEL)
         serving = version["serving"]
-        assert serving["auto"] == expected and serving["engines"]["fp32"] == r.headers["x-engine"]
+        assert serving["auto"] == expected and serving["engines"][expected] == r.headers["x-engine"]
         assert {"onnxruntime fp32", "openvino fp32", "onnxruntime int8", "openvino int8"} <= set(serving["measured_ms"])
         ms = serving["measured_ms"]
         # OpenVINO replaces ONNX Runtime only when it measured MARGIN faster at load (app.loading._fastest).
