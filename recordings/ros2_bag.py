@@ -56,10 +56,16 @@ class Topics:
         return f"{self.namespace}/{TOPICS[kind]}"
 
 
-def packed_rgb(rgb: np.ndarray) -> np.ndarray:
-    """N x 3 uint8 colours as PCL packs them: 0x00RRGGBB in a uint32, read as the bits of a float32."""
-    words = (rgb[:, 0].astype(np.uint32) << 16) | (rgb[:, 1].astype(np.uint32) << 8) | rgb[:, 2].astype(np.uint32)
-    return words.view(np.float32)
+def point_records(xyz: np.ndarray, rgb: np.ndarray) -> np.ndarray:
+    """N points as PointCloud2 data, 16 bytes each: x, y, z as float32, then the colour as PCL packs it,
+    0x00RRGGBB in a little-endian uint32 (bytes b, g, r, 0) read as the bits of a float32 ``rgb`` field.
+
+    Written in place, column by column: a full-resolution cloud is 4.9 MB a frame, and every copy of it
+    is time taken from the model on the same cores."""
+    records = np.zeros((len(xyz), POINT_STEP), dtype=np.uint8)
+    records.view("<f4")[:, :3] = xyz
+    records[:, 12:15] = rgb[:, ::-1]
+    return records
 
 
 class DepthBag:
@@ -101,7 +107,8 @@ class DepthBag:
 
     def depth_image(self, topic: str, stamp_ns: int, metres: np.ndarray) -> None:
         """32FC1 metres, NaN where there is no depth (0 in the service's millimetres)."""
-        values = np.where(metres > 0, metres, np.nan).astype("<f4")
+        values = metres.astype("<f4")  # a copy, whatever the input's type
+        values[~(values > 0)] = np.nan
         height, width = values.shape
         message = self.store.types["sensor_msgs/msg/Image"](
             header=self._header(stamp_ns),
@@ -135,9 +142,7 @@ class DepthBag:
     def point_cloud(self, stamp_ns: int, xyz: np.ndarray, rgb: np.ndarray) -> None:
         """One point per valid pixel: x, y, z in metres (camera frame) and the packed rgb, 16 bytes each."""
         types = self.store.types
-        records = np.empty((len(xyz), 4), dtype="<f4")
-        records[:, :3] = xyz
-        records[:, 3] = packed_rgb(rgb)
+        records = point_records(xyz, rgb)
         fields = [
             types["sensor_msgs/msg/PointField"](name=name, offset=4 * i, datatype=FLOAT32, count=1)
             for i, name in enumerate(("x", "y", "z", "rgb"))
@@ -150,7 +155,7 @@ class DepthBag:
             is_bigendian=False,
             point_step=POINT_STEP,
             row_step=POINT_STEP * len(xyz),
-            data=records.view(np.uint8).ravel(),
+            data=records.ravel(),
             is_dense=True,
         )
         self._put(self.topics["points"], "sensor_msgs/msg/PointCloud2", stamp_ns, message)
