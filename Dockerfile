@@ -1,6 +1,7 @@
 # The serving image: slim Python, the contract and the service only (no torch), the bundled model.
 # Mount your own registry (what fit publishes) at /models; the bundled models are served beside it.
-FROM python:3.11-slim
+ARG BASE=python:3.11-slim
+FROM ${BASE}
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
@@ -18,7 +19,13 @@ RUN groupadd --system --gid 10001 rgb2cloud \
 COPY pyproject.toml README.md ./
 COPY contract ./contract
 COPY app ./app
-RUN pip install --no-cache-dir .
+# OpenVINO runs ONNX graphs on the CPU: its GPU and NPU plugins (with the GPU's tuning cache) and its
+# other frontends are never loaded.
+RUN pip install --no-cache-dir . \
+    && ov="$(python -c 'import openvino; print(openvino.__path__[0])')/libs" \
+    && rm "$ov"/libopenvino_intel_gpu_plugin.so "$ov"/libopenvino_intel_npu_plugin.so "$ov"/cache.json \
+    && rm "$ov"/libopenvino_*tensorflow*_frontend.so.* "$ov"/libopenvino_paddle_frontend.so.* \
+        "$ov"/libopenvino_pytorch_frontend.so.* "$ov"/libopenvino_jax_frontend.so.* "$ov"/libopenvino_gguf_frontend.so.*
 
 COPY weights ./weights
 

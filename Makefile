@@ -28,10 +28,12 @@ lint: $(INSTALLED)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 
-# The tests drive Debian's chromium (the web page) and nginx (the load balancer); installing them needs root.
-SYSTEM_PACKAGES := chromium nginx-light
+# The tests drive Debian's chromium (the web page) and nginx (the load balancer), and build and run the image with
+# podman (runc runs it; debootstrap builds the stand-in for python:3.11-slim); installing them needs root.
+SYSTEM_PACKAGES := chromium nginx-light podman runc debootstrap
 system-packages:
-	@command -v chromium >/dev/null && command -v nginx >/dev/null || \
+	@command -v chromium >/dev/null && command -v nginx >/dev/null && command -v podman >/dev/null && \
+	    command -v runc >/dev/null && command -v debootstrap >/dev/null || \
 	    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(SYSTEM_PACKAGES); } || \
 	    { echo "make test needs $(SYSTEM_PACKAGES): apt-get install them as root"; exit 1; }
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import tempfile
 
 import uvicorn
 from pydantic import ValidationError
@@ -25,6 +26,20 @@ def setting_problem(error: ErrorDetails) -> str:
     return f"RGB2CLOUD_{'_'.join(map(str, error['loc'])).upper()}={error.get('input')!r}: {error['msg']}"
 
 
+def unwritable_temp_dir() -> str | None:
+    """Why uploads could not be received, or None. The multipart parser spools an upload over 1 MB to a
+    temporary file; on a read-only root with no writable /tmp, every large photo would be refused as a body
+    that does not parse. Said at startup instead, with the fix."""
+    try:
+        with tempfile.TemporaryFile():
+            return None
+    except OSError as e:
+        return (
+            f"no writable temporary folder ({e}): uploads over 1 MB are spooled there; on a read-only root "
+            "filesystem, mount a tmpfs at /tmp (or point TMPDIR at a writable folder)"
+        )
+
+
 def main() -> None:
     """Read the settings and load and verify the default model first: a bad setting or model is one log
     line and exit status 1."""
@@ -34,6 +49,9 @@ def main() -> None:
     except ValidationError as e:
         problems = "; ".join(setting_problem(error) for error in e.errors())
         log.critical("cannot start: %s", problems)
+        sys.exit(1)
+    if (problem := unwritable_temp_dir()) is not None:
+        log.critical("cannot start: %s", problem)
         sys.exit(1)
     catalog = ModelCatalog(settings)
     try:

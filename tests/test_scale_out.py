@@ -15,10 +15,7 @@ import io
 import shutil
 import signal
 import subprocess
-import threading
 import time
-from collections import Counter
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import httpx
@@ -29,6 +26,7 @@ from websockets.exceptions import InvalidStatus
 
 from app.stream_client import open_stream, receive
 from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, load_card, publish
+from harness.load import Load
 from harness.service import ServiceProcess, free_port, resident_mb
 
 #: Real processes, networks or browsers: the full suite (`make test`) runs these, `-m 'not slow'` skips them.
@@ -78,55 +76,6 @@ class Balancer:
     def stop(self) -> None:
         self.process.terminate()
         self.process.wait(timeout=10)
-
-
-class Load:
-    """``count`` POST /depth through the balancer from ``clients`` threads; what each got back."""
-
-    def __init__(self, url: str, count: int, clients: int, photo: bytes = PHOTO, params: dict | None = None):
-        self.url, self.count, self.clients, self.photo, self.params = url, count, clients, photo, params
-        self.statuses: Counter[str] = Counter()
-        self.versions: Counter[str] = Counter()
-        self.latencies: list[float] = []
-        self.done = 0
-        self._lock = threading.Lock()
-        self._thread = threading.Thread(target=self._run)
-
-    def start(self) -> Load:
-        self._thread.start()
-        return self
-
-    def wait(self, timeout_s: float = 300) -> Load:
-        self._thread.join(timeout_s)
-        assert not self._thread.is_alive(), (
-            f"the load did not finish in time: {self.done} of {self.count} done, {self.statuses}"
-        )
-        return self
-
-    def wait_for(self, done: int) -> None:
-        while self.done < done and self._thread.is_alive():
-            time.sleep(0.02)
-
-    def _one(self, client: httpx.Client) -> None:
-        start = time.perf_counter()
-        try:
-            r = client.post("/depth", files={"image": ("p.png", self.photo)}, params=self.params)
-            status, version = str(r.status_code), r.headers.get("x-model-version", "")
-        except httpx.HTTPError as e:
-            status, version = type(e).__name__, ""
-        with self._lock:
-            self.statuses[status] += 1
-            self.versions[version] += 1
-            self.latencies.append(time.perf_counter() - start)
-            self.done += 1
-
-    def _run(self) -> None:
-        with httpx.Client(base_url=self.url, timeout=60) as client, ThreadPoolExecutor(self.clients) as pool:
-            list(pool.map(lambda _: self._one(client), range(self.count)))
-
-    @property
-    def failed(self) -> int:
-        return self.count - self.statuses["200"]
 
 
 @pytest.fixture(scope="module")
@@ -191,7 +140,7 @@ def test_a_stream_opens_through_the_balancer_from_its_own_page(cluster):
 def test_a_replica_killed_mid_load_loses_no_request(cluster, registry):
     replicas, balancer = cluster
     mark = balancer.lines()
-    load = Load(balancer.url, 150, 6).start()
+    load = Load(balancer.url, 150, 6, PHOTO).start()
     load.wait_for(40)
     replicas[0].process.send_signal(signal.SIGKILL)
     load.wait()
@@ -204,7 +153,7 @@ def test_a_replica_killed_mid_load_loses_no_request(cluster, registry):
 def test_a_replica_stopped_with_sigterm_drains_and_loses_no_request(cluster, registry):
     replicas, balancer = cluster
     mark = balancer.lines()
-    load = Load(balancer.url, 150, 6).start()
+    load = Load(balancer.url, 150, 6, PHOTO).start()
     load.wait_for(40)
     stopping = replicas[1]
     stopping.process.send_signal(signal.SIGTERM)
@@ -224,7 +173,7 @@ def test_a_rolling_update_to_a_new_version_under_load(cluster, registry):
     card = load_card(folder).model_copy(update={"version": "0.2.0"})
     publish(registry, card, {f: folder / f for f in (ONNX_FILE, TORCHSCRIPT_FILE)})
     mark = balancer.lines()
-    load = Load(balancer.url, 400, 6).start()
+    load = Load(balancer.url, 400, 6, PHOTO).start()
     load.wait_for(20)
     for index in range(len(replicas)):
         replicas[index].stop()

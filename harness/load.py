@@ -1,0 +1,63 @@
+"""A bounded load of ``POST /depth`` from client threads, counting what came back: for the fault tests.
+
+A balancer's faults (a replica killed, stopped or replaced mid-load) are judged by what the clients got:
+how many requests succeeded, with which status each failed, and which model version answered.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
+
+import httpx
+
+
+class Load:
+    """``count`` POST /depth through the balancer from ``clients`` threads; what each got back."""
+
+    def __init__(self, url: str, count: int, clients: int, photo: bytes, params: dict | None = None):
+        self.url, self.count, self.clients, self.photo, self.params = url, count, clients, photo, params
+        self.statuses: Counter[str] = Counter()
+        self.versions: Counter[str] = Counter()
+        self.latencies: list[float] = []
+        self.done = 0
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run)
+
+    def start(self) -> Load:
+        self._thread.start()
+        return self
+
+    def wait(self, timeout_s: float = 300) -> Load:
+        self._thread.join(timeout_s)
+        assert not self._thread.is_alive(), (
+            f"the load did not finish in time: {self.done} of {self.count} done, {self.statuses}"
+        )
+        return self
+
+    def wait_for(self, done: int) -> None:
+        while self.done < done and self._thread.is_alive():
+            time.sleep(0.02)
+
+    def _one(self, client: httpx.Client) -> None:
+        start = time.perf_counter()
+        try:
+            r = client.post("/depth", files={"image": ("p.png", self.photo)}, params=self.params)
+            status, version = str(r.status_code), r.headers.get("x-model-version", "")
+        except httpx.HTTPError as e:
+            status, version = type(e).__name__, ""
+        with self._lock:
+            self.statuses[status] += 1
+            self.versions[version] += 1
+            self.latencies.append(time.perf_counter() - start)
+            self.done += 1
+
+    def _run(self) -> None:
+        with httpx.Client(base_url=self.url, timeout=60) as client, ThreadPoolExecutor(self.clients) as pool:
+            list(pool.map(lambda _: self._one(client), range(self.count)))
+
+    @property
+    def failed(self) -> int:
+        return self.count - self.statuses["200"]
