@@ -15,11 +15,15 @@ a user's machine, each said here once:
   registries. The Dockerfile takes it through ``--build-arg BASE``.
 - **Builds reach the registries through the host's network** (``--network host``).
 
-Images are kept in the machine's container storage, so a second run reuses them.
+Images are kept in the machine's container storage, so a second run reuses them. The stand-ins' tags
+carry a hash of this file, so a changed recipe builds afresh.
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import importlib.util
 import json
 import os
 import shutil
@@ -40,11 +44,15 @@ from harness.service import free_port
 REPO = Path(__file__).resolve().parents[1]
 #: Where podman's settings for this sandbox are written.
 SETTINGS = Path(tempfile.gettempdir()) / "rgb2cloud-podman"
+#: The recipe the stand-ins were built by: this file.
+RECIPE = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:12]
 #: The stand-in for ``python:3.11-slim``, and what the Dockerfile builds from it.
-BASE = "localhost/rgb2cloud-standin/python:3.11-slim"
+BASE = f"localhost/rgb2cloud-standin/python:3.11-slim-{RECIPE}"
 IMAGE = "localhost/rgb2cloud:test"
 #: nginx from Debian's package on the same stand-in, for the compose recipe's balancer.
-NGINX_IMAGE = "localhost/rgb2cloud-standin/nginx:bookworm"
+NGINX_IMAGE = f"localhost/rgb2cloud-standin/nginx:bookworm-{RECIPE}"
+#: The compose project the tests bring up: never the recipe's own (``rgb2cloud``), which may be running.
+PROJECT = "rgb2cloud-test"
 #: The machine's CA bundle: the package registries are reached through it.
 CA_BUNDLE = Path("/etc/ssl/certs/ca-certificates.crt")
 #: The stand-in's Python: a venv, first on PATH (a symlink to a venv's python would not start the venv).
@@ -69,22 +77,26 @@ graphroot = "/var/lib/containers/storage"
 """
 
 
-def podman_env() -> dict[str, str]:
-    """The environment that points ``podman`` (and ``podman-compose``) at this sandbox's settings."""
+@functools.cache
+def settings_env() -> tuple[tuple[str, str], ...]:
+    """Writes this sandbox's settings once; the variables that point podman at them."""
     SETTINGS.mkdir(parents=True, exist_ok=True)
     (SETTINGS / "containers.conf").write_text(CONTAINERS_CONF)
     (SETTINGS / "storage.conf").write_text(STORAGE_CONF)
-    return os.environ | {
-        "CONTAINERS_CONF": str(SETTINGS / "containers.conf"),
-        "CONTAINERS_STORAGE_CONF": str(SETTINGS / "storage.conf"),
-    }
-
-
-def podman(*args: str, check: bool = True, timeout: float = 600, **kwargs) -> subprocess.CompletedProcess:
-    """``podman ARGS`` with this sandbox's settings; its output captured as text."""
-    result = subprocess.run(
-        ["podman", *args], env=podman_env(), capture_output=True, text=True, timeout=timeout, **kwargs
+    return (
+        ("CONTAINERS_CONF", str(SETTINGS / "containers.conf")),
+        ("CONTAINERS_STORAGE_CONF", str(SETTINGS / "storage.conf")),
     )
+
+
+def podman_env() -> dict[str, str]:
+    """The environment that points ``podman`` (and ``podman-compose``) at this sandbox's settings."""
+    return os.environ | dict(settings_env())
+
+
+def podman(*args: str, check: bool = True, timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    """``podman ARGS`` with this sandbox's settings; its output captured as text."""
+    result = subprocess.run(["podman", *args], env=podman_env(), capture_output=True, text=True, timeout=timeout)
     if check and result.returncode != 0:
         raise RuntimeError(f"podman {' '.join(args)} failed ({result.returncode}): {result.stderr[-2000:]}")
     return result
@@ -95,15 +107,19 @@ def why_not() -> str | None:
     missing = [tool for tool in ("podman", "runc", "debootstrap") if shutil.which(tool) is None]
     if missing:
         return f"{', '.join(missing)} not installed (`make test` installs them with apt-get, as root)"
+    if importlib.util.find_spec("podman_compose") is None:
+        return "podman-compose is not installed in this environment (the dev extra has it)"
     if os.geteuid() != 0:
         return "podman's storage and networks here need root"
     info = podman("info", "--format", "json", check=False, timeout=120)
     if info.returncode != 0:
-        return f"`podman info` failed: {info.stderr.strip().splitlines()[-1:]}"
+        last = (info.stderr.strip().splitlines() or ["no message"])[-1]
+        return f"`podman info` failed ({info.returncode}): {last}"
     return None
 
 
 def exists(image: str) -> bool:
+    """Whether the machine's container storage holds ``image``."""
     return podman("image", "exists", image, check=False).returncode == 0
 
 
@@ -113,11 +129,7 @@ def standin_base(tag: str = BASE) -> str:
         return tag
     with tempfile.TemporaryDirectory(prefix="rgb2cloud-base-", dir="/var/tmp") as scratch:
         root = Path(scratch) / "root"
-        subprocess.run(
-            ["debootstrap", "--variant=minbase", "--include=python3,python3-venv,ca-certificates", "bookworm",
-             str(root), "http://deb.debian.org/debian"],
-            check=True, capture_output=True, timeout=900,
-        )  # fmt: skip
+        debootstrap(root)
         shutil.copy(CA_BUNDLE, root / CA_BUNDLE.relative_to("/"))
         subprocess.run(["chroot", str(root), "/usr/bin/python3", "-m", "venv", VENV], check=True, timeout=300)
         # What debian:bookworm-slim (python:3.11-slim's base) leaves out: the downloaded packages, apt's
@@ -134,6 +146,22 @@ def standin_base(tag: str = BASE) -> str:
         changes = [f"ENV PATH={PATH}", f"ENV PIP_CERT={CA_BUNDLE}", "ENV LANG=C.UTF-8", 'CMD ["python3"]']
         podman("import", *(arg for change in changes for arg in ("--change", change)), str(archive), tag)
     return tag
+
+
+def debootstrap(root: Path) -> None:
+    """Debian bookworm's minimal base with Python into ``root``; what debootstrap said if it fails. Its /proc and
+    /sys mounts are undone whatever happens, so the folder can be removed."""
+    command = ["debootstrap", "--variant=minbase", "--include=python3,python3-venv,ca-certificates", "bookworm"]
+    try:
+        result = subprocess.run(
+            [*command, str(root), "http://deb.debian.org/debian"], capture_output=True, text=True, timeout=900
+        )
+    finally:
+        for mount in (root / "proc", root / "sys"):
+            if os.path.ismount(mount):
+                subprocess.run(["umount", "--lazy", str(mount)], check=False)
+    if result.returncode != 0:
+        raise RuntimeError(f"debootstrap failed ({result.returncode}): {(result.stdout + result.stderr)[-3000:]}")
 
 
 def build(context: Path, tag: str, base: str, containerfile: Path | None = None) -> float:
@@ -168,6 +196,7 @@ def layers(image: str) -> list[tuple[str, int]]:
 
 
 def image_bytes(image: str) -> int:
+    """The image's size as podman reports it: every layer, the base's included."""
     return int(json.loads(podman("image", "inspect", image).stdout)[0]["Size"])
 
 
@@ -196,7 +225,7 @@ class Container:
     url: str
     ready_s: float
 
-    def run(self, *command: str) -> subprocess.CompletedProcess:
+    def run(self, *command: str) -> subprocess.CompletedProcess[str]:
         """``podman exec``: a command inside the container, as its user."""
         return podman("exec", self.name, *command, check=False)
 
@@ -207,8 +236,8 @@ def running(image: str, *options: str) -> Iterator[Container]:
     port = free_port()
     name = f"rgb2cloud-test-{port}"
     started = time.perf_counter()
-    podman("run", "--detach", "--name", name, "--publish", f"127.0.0.1:{port}:8000", *options, image)
     try:
+        podman("run", "--detach", "--name", name, "--publish", f"127.0.0.1:{port}:8000", *options, image)
         url = f"http://127.0.0.1:{port}"
         yield Container(name, url, wait_ready(url, name, started))
     finally:
@@ -217,17 +246,22 @@ def running(image: str, *options: str) -> Iterator[Container]:
 
 def compose(
     *args: str, override: Path, env: dict[str, str] | None = None, check: bool = True
-) -> subprocess.CompletedProcess:
-    """``podman-compose`` on ``deploy/compose.yaml`` as shipped, with ``override`` naming the images and ``env``
-    setting the variables the recipe reads."""
-    files = ["-f", str(REPO / "deploy" / "compose.yaml"), "-f", str(override)]
+) -> subprocess.CompletedProcess[str]:
+    """``podman-compose`` on ``deploy/compose.yaml`` as shipped, as project ``PROJECT``, with ``override``
+    naming the images and ``env`` setting the variables the recipe reads."""
+    files = ["-p", PROJECT, "-f", str(REPO / "deploy" / "compose.yaml"), "-f", str(override)]
     result = subprocess.run(
-        [str(Path(sys.executable).with_name("podman-compose")), *files, *args],
+        [sys.executable, "-m", "podman_compose", *files, *args],
         env=podman_env() | (env or {}), capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     if check and result.returncode != 0:
-        raise RuntimeError(f"podman-compose {' '.join(args)} failed: {result.stderr[-2000:]}")
+        raise RuntimeError(f"podman-compose {' '.join(args)} failed: {(result.stdout + result.stderr)[-3000:]}")
     return result
+
+
+def replicas(service: str, count: int) -> list[str]:
+    """The containers podman-compose names for ``count`` replicas of ``service`` in ``PROJECT``."""
+    return [f"{PROJECT}_{service}_{i}" for i in range(1, count + 1)]
 
 
 def wait_healthy(container: str, started: float, timeout_s: float = 180) -> float:

@@ -107,7 +107,7 @@ class DepthBag:
 
     def depth_image(self, topic: str, stamp_ns: int, metres: np.ndarray) -> None:
         """32FC1 metres, NaN where there is no depth (0 in the service's millimetres)."""
-        values = metres.astype("<f4")  # a copy, whatever the input's type
+        values = np.array(metres, dtype="<f4", order="C")  # a copy, row-major whatever the input's layout
         values[~(values > 0)] = np.nan
         height, width = values.shape
         message = self.store.types["sensor_msgs/msg/Image"](

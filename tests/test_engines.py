@@ -85,11 +85,14 @@ def test_each_engine_and_precision_serves_depth_at_odd_sizes_that_agrees_with_fp
 def test_auto_measures_both_engines_at_load_and_says_what_it_chose(reference):
     with running_service(bundled_registry=str(BUNDLED), model=MODEL, threads="2") as service:
         r = httpx.post(f"{service.url}/depth", files={"image": ("p.png", photo(517, 333))}, timeout=120)
-        expected = "bf16" if bf16_units() else "fp32"
-        assert r.headers["x-precision"] == expected and r.headers["x-engine"] in ("onnxruntime", "openvino")
         listed = httpx.get(f"{service.url}/v1/models", timeout=10).json()["models"]
         version = next(v for m in listed for v in m["versions"] if f"{m['name']}:{v['version']}" == MODEL)
         serving = version["serving"]
+        # bf16 is served where the CPU has bf16 units and it checked out and measured faster than fp32 at load;
+        # else the reason is listed (on a noisy machine bf16 may lose the race, and says so).
+        expected = "fp32" if "bf16" in serving["unserved"] else "bf16"
+        assert bf16_units() or expected == "fp32"
+        assert r.headers["x-precision"] == expected and r.headers["x-engine"] in ("onnxruntime", "openvino")
         assert serving["auto"] == expected and serving["engines"][expected] == r.headers["x-engine"]
         assert {"onnxruntime fp32", "openvino fp32", "onnxruntime int8", "openvino int8"} <= set(serving["measured_ms"])
         ms = serving["measured_ms"]
@@ -106,7 +109,10 @@ def test_auto_measures_both_engines_at_load_and_says_what_it_chose(reference):
             )
             assert asked.status_code == 200 and asked.headers["x-precision"] == "fp32"
             assert asked.headers["x-precision-fallback"] == f"bf16 asked for; {NO_BF16}"
-        assert np.abs(depth_mm(r) - reference[(517, 333)]).max() <= 2 or expected == "bf16"
+        if expected == "fp32":  # the same arithmetic: a millimetre of rounding at most
+            assert np.abs(depth_mm(r) - reference[(517, 333)]).max() <= 2
+        else:
+            assert depth_agreement(reference[(517, 333)], depth_mm(r))["agreement"] >= 0.95
 
 
 class Scaled:

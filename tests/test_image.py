@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import shutil
 import time
+from collections.abc import Iterator
 
 import httpx
 import numpy as np
@@ -23,6 +25,7 @@ from PIL import Image
 from plyfile import PlyData
 
 from app.catalog import ModelCatalog
+from app.loading import LoadedModel
 from app.settings import Settings
 from harness import containers
 from harness.load import Load
@@ -38,6 +41,7 @@ UID = "10001"
 
 
 def report(line: str) -> None:
+    """A line of what was measured, printed and kept in the report."""
     print(line)
     with REPORT.open("a") as f:
         f.write(line + "\n")
@@ -62,7 +66,7 @@ def image() -> str:
 
 
 @pytest.fixture(scope="module")
-def served(image):
+def served(image: str) -> Iterator[containers.Container]:
     """The image as users run it: no options but the published port."""
     with containers.running(image) as container:
         report(f"Ready {container.ready_s:.1f} s after `podman run`.")
@@ -70,7 +74,7 @@ def served(image):
 
 
 @pytest.fixture(scope="module")
-def bundled():
+def bundled() -> LoadedModel:
     """The bundled default model on this machine, on ONNX Runtime: what the image must agree with."""
     settings = Settings(registry=NO_REGISTRY, bundled_registry=REPO / "weights", engine="onnxruntime", threads=2)
     return ModelCatalog(settings).load_default()
@@ -78,6 +82,9 @@ def bundled():
 
 def test_the_image_serves_depth_that_the_bundled_model_agrees_with(served, bundled):
     assert httpx.get(f"{served.url}/readyz").json()["model"] == bundled.card.name
+    (default,) = [m for m in httpx.get(f"{served.url}/v1/models").json()["models"] if m["name"] == bundled.card.name]
+    measured = next(v for v in default["versions"] if v["version"] == bundled.card.version)["serving"]["measured_ms"]
+    assert {"onnxruntime fp32", "openvino fp32"} <= set(measured)  # both engines load, with OpenVINO's plugins cut
     camera = bundled.card.camera
     rgb = np.asarray(Image.open(PHOTO).convert("RGB"))
     r = httpx.post(
@@ -92,16 +99,22 @@ def test_the_image_serves_depth_that_the_bundled_model_agrees_with(served, bundl
         served_mm = np.asarray(png).astype(np.int64)
     here_mm = np.round(bundled.predict_depth(rgb) * 1000).astype(np.int64)
     difference = np.abs(served_mm - here_mm)
-    # fp32 on either engine: the same millimetres but where a value sits on a rounding edge.
-    assert difference.max() <= 1 and (difference == 0).mean() > 0.99, (difference.max(), (difference == 0).mean())
+    # fp32 on either engine: the same millimetres but where a value sits on a rounding edge (as test_engines).
+    assert difference.max() <= 2 and (difference == 0).mean() > 0.99, (difference.max(), (difference == 0).mean())
 
 
 def test_the_image_s_point_cloud_is_its_depth_back_projected(served):
     photo = PHOTO.read_bytes()
-    depth = httpx.post(f"{served.url}/depth", files={"image": photo}, timeout=60)
-    cloud = httpx.post(f"{served.url}/pointcloud", files={"image": photo}, params={"max_depth": 100}, timeout=60)
+    camera = {"fx": 600.0, "fy": 610.0, "cx": 330.5, "cy": 235.25}  # a camera of the photo's own, given
+    depth = httpx.post(f"{served.url}/depth", files={"image": photo}, params=camera, timeout=60)
+    assert depth.status_code == 200, depth.text
+    cloud = httpx.post(
+        f"{served.url}/pointcloud", files={"image": photo}, params={**camera, "max_depth": 100}, timeout=60
+    )
     assert cloud.status_code == 200 and cloud.headers["content-type"] == "application/octet-stream", cloud.text
+    assert cloud.headers["x-intrinsics-source"] == "query"
     fx, fy, cx, cy = (float(v) for v in cloud.headers["x-intrinsics"].split(","))
+    assert (fx, fy, cx, cy) == tuple(camera.values())
     with Image.open(io.BytesIO(depth.content)) as png:
         mm = np.asarray(png).astype(np.float64)
     vertex = PlyData.read(io.BytesIO(cloud.content))["vertex"]
@@ -143,7 +156,11 @@ def test_a_read_only_root_serves_with_a_tmpfs_at_tmp_and_refuses_to_start_withou
     """As compose and Kubernetes run it. Uploads over 1 MB are spooled to a temporary file, so with no writable
     folder at all the service says so at startup rather than refuse every large photo."""
     read_only = ("--read-only", "--read-only-tmpfs=false")  # Docker's --read-only: podman's mounts tmpfs itself
-    without = containers.podman("run", "--rm", *read_only, image, check=False, timeout=120)
+    name = f"rgb2cloud-test-no-tmp-{free_port()}"
+    try:
+        without = containers.podman("run", "--name", name, *read_only, image, check=False, timeout=120)
+    finally:
+        containers.podman("rm", "--force", "--time", "2", name, check=False)
     assert without.returncode == 1 and "mount a tmpfs at /tmp" in without.stdout + without.stderr, without
     large = io.BytesIO()
     Image.open(PHOTO).convert("RGB").resize((1920, 1440), Image.Resampling.BICUBIC).save(large, "PNG")
@@ -153,22 +170,22 @@ def test_a_read_only_root_serves_with_a_tmpfs_at_tmp_and_refuses_to_start_withou
         assert r.status_code == 200, r.text
         with Image.open(io.BytesIO(r.content)) as png:
             assert png.size == (1920, 1440)
-        assert c.run("touch", "/srv/rgb2cloud/x").returncode != 0  # the root really is read-only
+        assert c.run("touch", "/var/tmp/x").returncode != 0  # world-writable on a writable root
 
 
 @pytest.fixture(scope="module")
-def cluster(image, tmp_path_factory):
+def cluster(image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, list[str]]]:
     """``deploy/compose.yaml`` as shipped, up with ``podman-compose``: three replicas behind nginx."""
     nginx = containers.nginx_image(containers.standin_base())
     override = tmp_path_factory.mktemp("compose") / "override.yaml"
     override.write_text(f"services:\n  rgb2cloud:\n    image: {image}\n  balancer:\n    image: {nginx}\n")
     port = free_port()
-    containers.compose("down", "--timeout", "5", override=override, check=False)
+    containers.compose("down", "--timeout", "2", override=override, check=False)  # a run interrupted before
     started = time.perf_counter()
-    containers.compose("up", "--detach", override=override, env={"RGB2CLOUD_BALANCER_PORT": str(port)})
     try:
+        containers.compose("up", "--detach", override=override, env={"RGB2CLOUD_BALANCER_PORT": str(port)})
         url = f"http://127.0.0.1:{port}"
-        names = [f"rgb2cloud_rgb2cloud_{i}" for i in (1, 2, 3)]
+        names = containers.replicas("rgb2cloud", 3)
         for name in names:  # podman 4.3 starts the balancer without waiting for healthy replicas
             containers.wait_healthy(name, started)
         report(f"\nCompose: three replicas and the balancer ready {time.perf_counter() - started:.0f} s after `up`.")
@@ -178,8 +195,14 @@ def cluster(image, tmp_path_factory):
 
 
 def balancer_log() -> list[str]:
-    log = containers.podman("exec", "rgb2cloud_balancer_1", "cat", "/tmp/rgb2cloud-nginx-access.log")
-    return log.stdout.splitlines()
+    """The balancer's access log: status, every replica tried (``a, b`` when retried), their statuses, time."""
+    (balancer,) = containers.replicas("balancer", 1)
+    return containers.podman("exec", balancer, "cat", "/tmp/rgb2cloud-nginx-access.log").stdout.splitlines()
+
+
+def answered_by(line: str) -> str:
+    """The replica that answered a logged request: the last address nginx tried."""
+    return re.findall(r"\d+\.\d+\.\d+\.\d+:\d+", line)[-1]
 
 
 def test_compose_spreads_requests_over_the_replicas(cluster):
@@ -187,20 +210,30 @@ def test_compose_spreads_requests_over_the_replicas(cluster):
     mark = len(balancer_log())
     load = Load(url, 30, 3, PHOTO.read_bytes()).start().wait()
     assert load.failed == 0, load.statuses
-    answered = {line.split()[1].split(",")[-1] for line in balancer_log()[mark:]}
+    answered = {answered_by(line) for line in balancer_log()[mark:]}
     assert len(answered) == len(names), answered
 
 
-@pytest.mark.parametrize("how", ["stop", "kill"])
-def test_compose_loses_no_request_when_a_replica_goes(cluster, how):
-    """docs/deploy.md's fault table: a replica stopped (SIGTERM, drained) or killed (SIGKILL) mid-load costs
-    the clients nothing while the others answer."""
+@pytest.mark.parametrize(("how", "exit_codes"), [("stop", {0, 143}), ("kill", {137})])
+def test_compose_loses_no_request_when_a_replica_goes(cluster, how: str, exit_codes: set[int]):
+    """docs/deploy.md's fault table: a replica stopped (SIGTERM: it drains and exits cleanly) or killed
+    (SIGKILL) mid-load costs the clients nothing while the others answer."""
     url, names = cluster
     victim = names[1] if how == "stop" else names[2]
+    mark = len(balancer_log())
+    victim_ip = containers.podman(
+        "inspect", "--format", "{{range .NetworkSettings.Networks}}{{.IPAddress}}{{end}}", victim
+    ).stdout.strip()
     load = Load(url, 90, 6, PHOTO.read_bytes()).start()
-    load.wait_for(20)
-    containers.podman(how, victim)
-    load.wait()
-    report(f"Compose, `podman {how}` of a replica mid-load: {dict(load.statuses)} of {load.count}.")
+    try:
+        load.wait_for(20)
+        containers.podman(how, victim)
+        load.wait()
+        exit_code = int(containers.podman("inspect", "--format", "{{.State.ExitCode}}", victim).stdout)
+    finally:
+        containers.podman("start", victim, check=False)
+        containers.wait_healthy(victim, time.perf_counter())
+    report(f"Compose, `podman {how}` of a replica mid-load: {dict(load.statuses)} of {load.count}; exit {exit_code}.")
     assert load.failed == 0, load.statuses
-    containers.podman("start", victim)
+    assert exit_code in exit_codes  # a stop that overran its grace period would be SIGKILLed: 137
+    assert any(answered_by(line).startswith(f"{victim_ip}:") for line in balancer_log()[mark:])  # it had a share
