@@ -189,10 +189,8 @@ def nginx_image(base: str, tag: str = NGINX_IMAGE) -> str:
 
 def layers(image: str) -> list[tuple[str, int]]:
     """(the step that made it, bytes it adds) for each layer of ``image``, oldest first."""
-    history = json.loads(podman("history", "--format", "json", "--no-trunc", image).stdout)
-    return [(entry.get("createdBy") or entry.get("CreatedBy", ""), int(entry.get("size", 0))) for entry in history][
-        ::-1
-    ]
+    newest_first = json.loads(podman("history", "--format", "json", "--no-trunc", image).stdout)
+    return [(entry["CreatedBy"], int(entry["size"])) for entry in reversed(newest_first)]
 
 
 def image_bytes(image: str) -> int:
