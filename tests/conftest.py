@@ -17,6 +17,11 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data"
 SEVEN_SCENES = DATA / "7scenes-redkitchen"
 TUM_FRAME = DATA / "tum-fr3-office"
+#: How closely one model's metrics, computed along two routes (another process, batch or entry point), must
+#: agree. Not bit for bit: oneDNN picks its float32 kernels by CPU (AMX, AVX-512, AVX2) and their sums round
+#: differently, about 1e-6 relative to a mean, and a pixel sitting on a δ threshold may land on either side,
+#: moving δ by 1/N (2e-6 for two 640x480 frames). A real difference in scoring moves them by far more.
+FLOAT32_METRICS: dict[str, float] = {"rel": 1e-4, "abs": 2e-5}
 #: The Kinect calibration the paper uses (TUM fr3 defaults), at 640x480.
 KINECT = Intrinsics(fx=535.4, fy=539.2, cx=320.1, cy=247.6, width=640, height=480)
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from conftest import KINECT, REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, run_cli
+from conftest import FLOAT32_METRICS, KINECT, REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, run_cli
 from PIL import Image
 
 from contract.geometry import colours, point_cloud, xyz
@@ -149,7 +149,7 @@ def test_a_run_scored_elsewhere_is_stored_as_the_record_the_report_would_make(tr
     for field in ("split", "min_m", "max_m", "unseen"):
         assert getattr(via_record, field) == getattr(direct, field), field
     for field in ("test", "unseen_metrics", "pc_rmse"):
-        assert getattr(via_record, field) == pytest.approx(getattr(direct, field)), field
+        assert getattr(via_record, field) == pytest.approx(getattr(direct, field), **FLOAT32_METRICS), field
     assert via_record.config == direct.config and via_record.source == "a tiny run"
     # Two evaluations under different depth ranges cannot make one record.
     run_cli(
@@ -191,12 +191,12 @@ def test_a_run_trained_on_registered_depth_is_scored_through_its_colour_camera(t
     args = ["--format", "7scenes", "--root", str(SEVEN_SCENES), "--frames", "850-851"]
     run_cli("evaluate", str(registered), *args, "--out", str(tmp_path / "e"), "--colour-camera", camera)
     evaluated = json.loads((tmp_path / "e" / "metrics.json").read_text())["metrics"]
-    assert through.test == pytest.approx(evaluated)
+    assert through.test == pytest.approx(evaluated, **FLOAT32_METRICS)
     # Same weights, read another way: the pixel-to-pixel row differs; the unseen TUM frame is registered
     # already, so it is read pixel to pixel (each model at its own camera: the registered run's is the colour one).
     assert through.test["rel"] != pytest.approx(raw.test["rel"])
     pixel_to_pixel, _, _ = evaluate_frames(load_predictor(registered), manifest, min_m=0.1, max_m=10.0)
-    assert through.unseen_metrics == pytest.approx(pixel_to_pixel)
+    assert through.unseen_metrics == pytest.approx(pixel_to_pixel, **FLOAT32_METRICS)
     assert colour_camera_of(through.config, SEVEN_SCENES).fx == 530.0
     assert colour_camera_of(raw.config, SEVEN_SCENES) is None
     assert colour_camera_of(through.config, SEVEN_SCENES).flow() == camera
