@@ -10,6 +10,7 @@ a new setting is a field here plus the code that applies it in the exported grap
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -23,9 +24,59 @@ class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
-class GeneratorSpec(Strict):
-    """pix2pixHD's global generator. The paper: 32 filters in the first layer."""
+#: EfficientNet-Lite0's stages, as Google's ``efficientnet_lite_builder`` gives them (ReLU6, no
+#: squeeze-excitation, a 32-channel stem): (repeats, kernel, stride, expansion, output channels).
+EFFICIENTNET_LITE0_STAGES: tuple[tuple[int, int, int, int, int], ...] = (
+    (1, 3, 1, 1, 16),
+    (2, 3, 2, 6, 24),
+    (2, 5, 2, 6, 40),
+    (3, 3, 2, 6, 80),
+    (3, 5, 1, 6, 112),
+    (4, 5, 2, 6, 192),
+    (1, 3, 1, 6, 320),
+)
+#: The stages whose last output feeds the decoder: strides 2, 4, 8, 16 and 32.
+EFFICIENTNET_SKIP_STAGES = (0, 1, 2, 4, 6)
+EFFICIENTNET_STEM = 32
 
+
+@dataclass(frozen=True)
+class EncoderBlock:
+    """One inverted-bottleneck block of an EfficientNet-Lite encoder."""
+
+    stage: int
+    cin: int
+    cout: int
+    kernel: int
+    stride: int
+    expand: int
+
+
+def encoder_blocks(stages: tuple[tuple[int, int, int, int, int], ...]) -> list[EncoderBlock]:
+    """Every block in order: a stage's first block changes channels and stride, its repeats keep them."""
+    blocks, cin = [], EFFICIENTNET_STEM
+    for index, (repeats, kernel, stride, expand, cout) in enumerate(stages):
+        for r in range(repeats):
+            blocks.append(EncoderBlock(index, cin, cout, kernel, stride if r == 0 else 1, expand))
+            cin = cout
+    return blocks
+
+
+#: What ``GeneratorSpec.encoder`` fixes in the rest of the spec, for an encoder other than pix2pixHD's own.
+PRETRAINED_ENCODER_FIXES: dict[str, Any] = {"n_downsample": 5, "n_blocks": 0, "dilations": [], "upsampler": "bilinear"}
+
+
+class GeneratorSpec(Strict):
+    """pix2pixHD's global generator, or a U-Net on a pretrained encoder. The paper: 32 filters in the first layer."""
+
+    encoder: Literal["pix2pixhd", "efficientnet-lite0"] = Field(
+        "pix2pixhd",
+        description="pix2pixhd: the paper's generator, trained from random weights; efficientnet-lite0: beyond the "
+        "paper, a U-Net whose encoder is EfficientNet-Lite0 (started from ImageNet weights when training), with "
+        "skips at strides 2-32 and a decoder of `ngf` channels per stage, BatchNorm (folded at export) and "
+        "`bilinear` upsampling; it fixes n_downsample 5, n_blocks 0 and the upsampler, and `dropout` acts on "
+        "the encoder's deepest features",
+    )
     input_nc: int = 3
     output_nc: int = 1
     ngf: int = Field(32, ge=1, description="filters in the first layer")
@@ -61,6 +112,17 @@ class GeneratorSpec(Strict):
         "multiply-adds: bench/generator_size.py)",
     )
 
+    @model_validator(mode="before")
+    @classmethod
+    def _encoder_fixes_the_rest(cls, data: Any) -> Any:
+        """A pretrained encoder decides depth, blocks and upsampler: filled in where left out, checked where given."""
+        if not isinstance(data, dict) or data.get("encoder", "pix2pixhd") == "pix2pixhd":
+            return data
+        for key, fixed in PRETRAINED_ENCODER_FIXES.items():
+            if key in data and data[key] != fixed:
+                raise ValueError(f"encoder {data['encoder']} needs {key} {fixed!r}, got {data[key]!r}")
+        return {**PRETRAINED_ENCODER_FIXES, **data}
+
     @model_validator(mode="after")
     def _one_dilation_per_block(self) -> GeneratorSpec:
         if self.dilations and (len(self.dilations) != self.n_blocks or min(self.dilations) < 1):
@@ -83,8 +145,10 @@ class GeneratorSpec(Strict):
         """Every convolution's weight shape, in network order, without building the network.
 
         Lets a torch-free loader check that exported weights match this spec;
-        a trainer test keeps it equal to ``trainer.networks.GlobalGenerator``'s.
+        a trainer test keeps it equal to ``trainer.networks.build_generator``'s.
         """
+        if self.encoder != "pix2pixhd":
+            return self._unet_weight_shapes()
         ngf = self.ngf
         shapes = [(ngf, self.input_nc, 7, 7)]
         shapes += [(ngf * 2 ** (i + 1), ngf * 2**i, 3, 3) for i in range(self.n_downsample)]
@@ -98,6 +162,23 @@ class GeneratorSpec(Strict):
                 else (2 * c if self.upsampler == "shuffle" else c // 2, c, 3, 3)  # shuffle: 4 x c/2 outputs
             )
         shapes.append((self.output_nc, ngf, 7, 7))
+        return shapes
+
+    def _unet_weight_shapes(self) -> list[tuple[int, ...]]:
+        """The encoder's convolutions (no ImageNet head), then the decoder's, from the deepest stage up."""
+        shapes: list[tuple[int, ...]] = [(EFFICIENTNET_STEM, self.input_nc, 3, 3)]
+        blocks = encoder_blocks(EFFICIENTNET_LITE0_STAGES)
+        for b in blocks:
+            hidden = b.cin * b.expand
+            if b.expand != 1:
+                shapes.append((hidden, b.cin, 1, 1))
+            shapes += [(hidden, 1, b.kernel, b.kernel), (b.cout, hidden, 1, 1)]
+        skips = [EFFICIENTNET_LITE0_STAGES[s][4] for s in EFFICIENTNET_SKIP_STAGES]
+        c, below = self.ngf, skips[-1]
+        for skip in reversed(skips[:-1]):
+            shapes += [(c, below, 3, 3), (c, c + skip, 3, 3)]
+            below = c
+        shapes += [(c, c, 3, 3), (self.output_nc, c, 3, 3)]
         return shapes
 
 

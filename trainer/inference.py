@@ -1,6 +1,6 @@
 """The generator as it runs on a photo after training: the graph that export writes.
 
-Training runs ``GlobalGenerator`` alone, on frames already at its working scale.
+Training runs the generator (``trainer.networks.build_generator``) alone, on frames already at its working scale.
 A photo at full size needs more around it, all of it fixed operations that export
 into the same ONNX and TorchScript graph, so the service runs them with no code of
 its own:
@@ -24,7 +24,6 @@ from torch import nn
 
 from contract.runtime import from_grid, to_grid
 from contract.spec import InferenceSettings
-from trainer.networks import GlobalGenerator
 from trainer.refine import ColourWeightedMedian
 
 
@@ -34,7 +33,7 @@ class InferenceGraph(nn.Module):
     The refinements have no weights, so the state dict is the generator's under ``generator.``.
     """
 
-    def __init__(self, generator: GlobalGenerator, settings: InferenceSettings):
+    def __init__(self, generator: nn.Module, settings: InferenceSettings):
         super().__init__()
         self.generator = generator
         self.settings = settings

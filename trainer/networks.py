@@ -1,14 +1,17 @@
-"""The paper's networks, after pix2pixHD: a global generator and a multi-scale PatchGAN.
+"""The paper's networks, after pix2pixHD: a global generator and a multi-scale PatchGAN; and beyond the
+paper, a U-Net generator on a pretrained encoder.
 
 Each network is one small class that reads top to bottom like the paper's
 description. Instance norm without affine parameters, as pix2pixHD uses.
 """
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
-from contract.spec import GeneratorSpec
+from contract.spec import EFFICIENTNET_LITE0_STAGES, EFFICIENTNET_SKIP_STAGES, GeneratorSpec
 from trainer.config import DiscriminatorConfig
+from trainer.efficientnet import EfficientNetLite
 
 
 def _norm(channels: int) -> nn.Module:
@@ -91,6 +94,80 @@ class GlobalGenerator(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.model(x)
+
+
+def conv_bn_relu(cin: int, cout: int) -> nn.Sequential:
+    """A 3x3 convolution, BatchNorm (folded into the convolution at export) and ReLU.
+
+    Replicate padding: no zeros at the border for the decoder to learn an edge from, and unlike
+    reflection it works on the 1-pixel maps at stride 32 of the smallest photos.
+    """
+    return nn.Sequential(
+        nn.Conv2d(cin, cout, 3, padding=1, padding_mode="replicate", bias=False), nn.BatchNorm2d(cout), nn.ReLU(True)
+    )
+
+
+class DecoderStage(nn.Module):
+    """One U-Net decoder stage: a convolution, a bilinear 2x resize (``upsampler: bilinear``, no ripple),
+    the encoder's features at that stride concatenated, and a convolution that merges them."""
+
+    def __init__(self, cin: int, skip: int, channels: int):
+        super().__init__()
+        self.reduce = conv_bn_relu(cin, channels)
+        self.merge = conv_bn_relu(channels + skip, channels)
+
+    def forward(self, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
+        x = F.interpolate(self.reduce(x), scale_factor=2.0, mode="bilinear", align_corners=False)
+        return self.merge(torch.cat([x, skip], 1))
+
+
+class UNetGenerator(nn.Module):
+    """``encoder: efficientnet-lite0``: EfficientNet-Lite0 features at strides 2-32, a decoder of ``ngf``
+    channels per stage back to stride 1, and a 3x3 output convolution with tanh (log-depth, as the codec reads).
+
+    Runs at its working scale like ``GlobalGenerator``: height and width multiples of 32. The spec's
+    ``dropout`` (the paper's noise Z) drops the deepest features during training.
+    """
+
+    def __init__(self, spec: GeneratorSpec):
+        super().__init__()
+        self.spec = spec
+        self.encoder = EfficientNetLite(EFFICIENTNET_LITE0_STAGES)
+        self.frozen_encoder = False
+        skips = [EFFICIENTNET_LITE0_STAGES[s][4] for s in EFFICIENTNET_SKIP_STAGES]
+        c = spec.ngf
+        self.dropout = nn.Dropout(spec.dropout) if spec.dropout > 0 else nn.Identity()
+        below = [skips[-1]] + [c] * 3  # each stage's input: the deepest features, then the stage before
+        self.stages = nn.ModuleList(
+            DecoderStage(cin, skip, c) for cin, skip in zip(below, reversed(skips[:-1]), strict=True)
+        )
+        self.last = conv_bn_relu(c, c)
+        self.out = nn.Conv2d(c, spec.output_nc, 3, padding=1, padding_mode="replicate")
+
+    def freeze_encoder(self) -> None:
+        """Keep the encoder as loaded: no gradients, and its BatchNorm statistics never updated."""
+        self.frozen_encoder = True
+        self.encoder.requires_grad_(False)
+        self.encoder.eval()
+
+    def train(self, mode: bool = True) -> "UNetGenerator":
+        super().train(mode)
+        if self.frozen_encoder:
+            self.encoder.eval()
+        return self
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        features = self.encoder(x)
+        x = self.dropout(features[-1])
+        for i, stage in enumerate(self.stages):
+            x = stage(x, features[len(features) - 2 - i])
+        x = F.interpolate(self.last(x), scale_factor=2.0, mode="bilinear", align_corners=False)
+        return torch.tanh(self.out(x))
+
+
+def build_generator(spec: GeneratorSpec) -> nn.Module:
+    """The generator a spec describes, freshly initialised by PyTorch (``trainer.gan`` sets its starting weights)."""
+    return GlobalGenerator(spec) if spec.encoder == "pix2pixhd" else UNetGenerator(spec)
 
 
 class NLayerDiscriminator(nn.Module):

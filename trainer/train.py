@@ -54,7 +54,6 @@ from trainer.evaluate import Predictor, evaluate_frames
 from trainer.gan import Autocast, build_networks, gan_step
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.losses import GANLoss
-from trainer.networks import GlobalGenerator
 from trainer.visualize import sample_grid
 
 #: Config sections that define the networks and their targets; resume refuses to change them.
@@ -121,7 +120,7 @@ def training_loader(config: RunConfig, ddp: Distributed, start_step: int, pin_me
 
 
 def score_generator(
-    generator: GlobalGenerator, config: RunConfig, frames: ConcatFrames, camera: Intrinsics
+    generator: nn.Module, config: RunConfig, frames: ConcatFrames, camera: Intrinsics
 ) -> tuple[dict, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
     """Validation: the generator run as export will run it (its inference settings, at its card's ``camera``)."""
     generator.eval()
@@ -288,7 +287,7 @@ def train_step(
     tick = time.perf_counter()
     for opt in (run.opt_g, run.opt_d):
         for group in opt.param_groups:
-            group["lr"] = run.config.optim.lr_at(step)
+            group["lr"] = run.config.optim.lr_at(step) * group.get("lr_scale", 1.0)
     torch.manual_seed(step_seed(run.config.train.seed, step, run.ddp.rank))
     batch = {k: v.to(run.device, non_blocking=True) for k, v in batch.items()}
     networks, optimisers = (run.generator, run.discriminator), (run.opt_g, run.opt_d)
