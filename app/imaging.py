@@ -97,6 +97,12 @@ def depth_millimetres(metres: np.ndarray, dtype: str = "<u2") -> np.ndarray:
     return np.clip(mm, 0, 65535).astype(dtype)
 
 
+def depth_metres(metres: np.ndarray) -> np.ndarray:
+    """Metres as little-endian float32, row-major, 0 where there is no depth: the stream's ``raw32``."""
+    values = np.where(np.isfinite(metres) & (metres > 0), metres, 0)
+    return np.ascontiguousarray(values, dtype="<f4")
+
+
 def depth_png_rows(metres: np.ndarray) -> np.ndarray:
     """Millimetres as 16-bit big-endian PNG scanlines, each prefixed by the "Up" filter.
 

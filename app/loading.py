@@ -24,7 +24,14 @@ from contract.card import (
 )
 from contract.codec import INPUT_ENCODING
 from contract.engines import Engine, onnx_runner, runs
-from contract.runtime import PARITY_AGREEMENT, ExportedGenerator, RunPrecision, depth_agreement
+from contract.runtime import (
+    ExportedGenerator,
+    RunPrecision,
+    check_sizes,
+    depth_agreement,
+    disagreement,
+    worst_agreement,
+)
 
 
 class ModelLoadError(Exception):
@@ -161,7 +168,11 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
     photo = sample if sample is not None else np.zeros((card.camera.height, card.camera.width, 3), np.uint8)
     built = _reference(files["fp32"], card, settings)
     ((_, reference_runner),) = built.items()
-    reference = card.depth_encoding.decode(reference_runner.predict_raw(photo))
+    try:
+        photos = check_sizes(photo)
+        references = [card.depth_encoding.decode(reference_runner.predict_raw(p)) for p in photos]
+    except Exception as e:  # a graph that loads but cannot run: refused once, with why, never a 500 per request
+        raise ModelLoadError(f"{files['fp32']}: its fp32 graph fails on its check photo: {e}") from e
     # A precision without a file to run: no int8 graph in the card, or an engine that runs fp32 only.
     unserved: dict[RunPrecision, str] = {
         p: "this version has no int8 graph" if p == "int8" and card.int8 is None else runs(settings.engine, p) or ""
@@ -174,15 +185,18 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
     for precision in ("fp32", "bf16", "int8"):
         if precision not in files:
             continue
-        check = (photo, reference, sample)
+        check = (photos, references, sample)
         passed, why = _candidates(files[precision], card, settings, precision, check, built)
         if not passed:
             unserved[precision] = why
             disagrees |= {precision} if "disagrees" in why else set()
             continue
         timed = len(passed) > 1 or precision == "bf16"
-        times = _median_ms(passed, photo) if timed else dict.fromkeys(passed, 0.0)
+        times, failed = _median_ms(passed, photo) if timed else (dict.fromkeys(passed, 0.0), {})
         measured |= {f"{engine} {precision}": ms for engine, ms in times.items() if timed}
+        if not times:
+            unserved[precision] = "; ".join(failed.values())
+            continue
         engine = _fastest(times)
         chosen[precision] = (engine, passed[engine], times[engine])
     if "fp32" not in chosen:
@@ -239,15 +253,17 @@ def _candidates(
     card: ModelCard,
     settings: Settings,
     precision: RunPrecision,
-    check: tuple[np.ndarray, np.ndarray, np.ndarray | None],
+    check: tuple[list[np.ndarray], list[np.ndarray], np.ndarray | None],
     built: dict[tuple[Engine, RunPrecision], ExportedGenerator],
 ) -> tuple[dict[Engine, ExportedGenerator], str]:
-    """The engines that run ``precision`` here with depth that agrees with fp32's, and why none does if none.
+    """The engines that run ``precision`` here with the same depth as fp32's, and why none does if none.
 
-    ``check`` is the photo, the reference fp32 depth on it, and the version's sample (None without one);
-    ``built`` holds runners already made (the reference), which are not made twice.
+    ``check`` is the photos (the sample at its size and at twice it), the reference fp32 depth on each,
+    and the version's sample (None without one: then no reduced precision is served, since a blank photo
+    proves nothing); ``built`` holds runners already made (the reference), which are not made twice.
+    A candidate that raises while it is checked is dropped with what it raised.
     """
-    photo, reference, sample = check
+    photos, references, sample = check
     passed: dict[Engine, ExportedGenerator] = {}
     reasons = []
     engines = CANDIDATES[settings.engine]
@@ -266,34 +282,43 @@ def _candidates(
                 raise
             reasons.append(str(e))  # under auto, one engine that cannot load a graph leaves the other
             continue
-        parity = depth_agreement(reference, card.depth_encoding.decode(runner.predict_raw(photo)))
-        if parity["agreement"] >= PARITY_AGREEMENT:
+        try:
+            depths = [card.depth_encoding.decode(runner.predict_raw(p)) for p in photos]
+        except Exception as e:
+            reasons.append(f"its {precision} run on {engine} fails on the sample: {e}")
+            continue
+        parity = worst_agreement([depth_agreement(r, d) for r, d in zip(references, depths, strict=True)])
+        if (why := disagreement(parity)) is None:
             passed[engine] = runner
         else:
-            reasons.append(
-                f"its {precision} {'graph' if precision == 'int8' else 'path'} disagrees with fp32 on this machine "
-                f"({engine}): within 1.25x on {parity['agreement']:.1%} of the sample's pixels "
-                f"({PARITY_AGREEMENT:.0%} needed)"
-            )
+            what = "graph" if precision == "int8" else "path"
+            reasons.append(f"its {precision} {what} disagrees with fp32 on this machine ({engine}): {why}")
     return passed, "; ".join(dict.fromkeys(reasons))
 
 
-def _median_ms(runners: dict[Engine, ExportedGenerator], photo: np.ndarray) -> dict[Engine, float]:
-    """Median ms of each runner on ``photo``, one runner after another.
+def _median_ms(
+    runners: dict[Engine, ExportedGenerator], photo: np.ndarray
+) -> tuple[dict[Engine, float], dict[Engine, str]]:
+    """Median ms of each runner on ``photo``, one runner after another; and why each that raised did.
 
     Not in turns: ONNX Runtime's threads spin for a while after each call, and on a small machine the
     call that follows one, whichever engine, would be timed against them.
     """
     times: dict[Engine, float] = {}
+    failed: dict[Engine, str] = {}
     for engine, runner in runners.items():
-        runner.predict_raw(photo)
         runs_ms = []
-        for _ in range(TIMED_RUNS):
-            began = time.perf_counter()
+        try:
             runner.predict_raw(photo)
-            runs_ms.append((time.perf_counter() - began) * 1000)
+            for _ in range(TIMED_RUNS):
+                began = time.perf_counter()
+                runner.predict_raw(photo)
+                runs_ms.append((time.perf_counter() - began) * 1000)
+        except Exception as e:
+            failed[engine] = f"its run on {engine} failed while timed: {e}"
+            continue
         times[engine] = float(np.median(runs_ms))
-    return times
+    return times, failed
 
 
 def _fastest(times: dict[Engine, float]) -> Engine:
@@ -314,7 +339,10 @@ def _bf16_if_faster(
     refused."""
     engine, runner, fp32_ms = chosen["fp32"]
     if not fp32_ms:
-        fp32_ms = measured[f"{engine} fp32"] = _median_ms({engine: runner}, photo)[engine]
+        times, failed = _median_ms({engine: runner}, photo)
+        if failed:
+            raise ModelLoadError(f"{engine} fp32 fails when timed: {failed[engine]}")
+        fp32_ms = measured[f"{engine} fp32"] = times[engine]
     bf16_ms = chosen["bf16"][2]
     if bf16_ms < fp32_ms:
         return chosen, unserved

@@ -9,7 +9,7 @@ from typing import Literal
 import numpy as np
 
 from app.camera import CameraQuery, PhotoCamera, photo_camera
-from app.imaging import decode_image, depth_millimetres, encode_colormap_png, encode_depth_png
+from app.imaging import decode_image, depth_metres, depth_millimetres, encode_colormap_png, encode_depth_png
 from app.loading import LoadedModel
 from app.ply import encode_ply
 from app.temporal import TemporalFilter
@@ -152,7 +152,7 @@ class FrameOptions:
     """What a stream asks of each frame: which outputs, in which encodings, and the point cloud's bounds."""
 
     output: Literal["depth", "pointcloud", "both"]
-    depth_encoding: Literal["png16", "raw16"]
+    depth_encoding: Literal["png16", "raw16", "raw32"]
     cloud_encoding: Literal["ply", "raw"]
     cloud: CloudOptions
 
@@ -200,8 +200,10 @@ def stream_frame(
     if options.output in ("depth", "both"):
         if options.depth_encoding == "png16":
             payloads.append(("depth", "png16", encode_depth_png(inferred.depth)))
-        else:
+        elif options.depth_encoding == "raw16":
             payloads.append(("depth", "raw16", depth_millimetres(inferred.depth).tobytes()))
+        else:
+            payloads.append(("depth", "raw32", depth_metres(inferred.depth).tobytes()))
         watch.lap("encode")
     if options.output in ("pointcloud", "both"):
         bounds = options.cloud

@@ -63,8 +63,9 @@ class StreamOptions(BaseModel):
     cy: Centre = None
     precision: RunPrecision | Literal["auto"] | None = None
     output: Literal["depth", "pointcloud", "both"] = "depth"
-    #: png16: a 16-bit PNG in millimetres; raw16: width x height little-endian uint16 millimetres, cheaper.
-    depth_encoding: Literal["png16", "raw16"] = "png16"
+    #: png16: a 16-bit PNG in millimetres; raw16: width x height little-endian uint16 millimetres, cheaper;
+    #: raw32: width x height little-endian float32 metres, as computed (no millimetre rounding, no 65.535 m cap).
+    depth_encoding: Literal["png16", "raw16", "raw32"] = "png16"
     #: ply: binary PLY; raw: float32 x, y, z of every point, then uint8 r, g, b of every point.
     cloud_encoding: Literal["ply", "raw"] = "ply"
     stride: int = Field(1, ge=1, le=64)

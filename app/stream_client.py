@@ -47,9 +47,12 @@ def receive(socket: ClientConnection, timeout: float | None = 120) -> tuple[dict
 
 
 def raw_depth(entry: dict[str, Any], body: bytes) -> np.ndarray:
-    """A ``raw16`` depth payload as metres, height x width (0 where there is no depth)."""
-    mm = np.frombuffer(body, dtype="<u2").reshape(entry["height"], entry["width"])
-    return mm.astype(np.float64) / 1000.0
+    """A ``raw32`` (float32 metres) or ``raw16`` (millimetres) depth payload as metres, height x width (0 where
+    there is no depth)."""
+    shape = entry["height"], entry["width"]
+    if entry["encoding"] == "raw32":
+        return np.frombuffer(body, dtype="<f4").reshape(shape)
+    return np.frombuffer(body, dtype="<u2").reshape(shape).astype(np.float64) / 1000.0
 
 
 def raw_points(entry: dict[str, Any], body: bytes) -> tuple[np.ndarray, np.ndarray]:

@@ -34,6 +34,8 @@ class Lever:
     why: str
     #: The lever this one is measured against: its steps (for a quality lever) and its scores (for the rule).
     on: str = "baseline"
+    #: Other ``fit`` options, such as where it starts (``--from``); none: fit's default start.
+    options: tuple[str, ...] = ()
 
 
 # The recipe the experiments started from, spelled out, so that the table reruns whatever fit's default
@@ -43,6 +45,8 @@ class Lever:
 FP32 = ("train.amp=false",)
 GAN = ("loss.gan=1", "loss.feature_matching=10")
 L1_ALONE = ("loss.gan=0", "loss.feature_matching=0")
+FROM_0_9_0 = ("--from", str(REPO / "weights" / "rgb2cloud-7scenes" / "0.9.0"))
+FROM_1_0_0 = ("--from", str(REPO / "weights" / "rgb2cloud-7scenes" / "1.0.0"))
 LEVERS = {
     lever.name: lever
     for lever in [
@@ -67,6 +71,33 @@ LEVERS = {
             "and a few hundred steps from a trained start can take larger, smoother Adam steps",
             on="no-discriminator",
         ),
+        # Issue 60's levers (docs/research.md, "A generator that has seen the world"): each at the same wall clock.
+        Lever("from-0-9-0", "both", (), "today's fit from the bundled 0.9.0", "from-0-9-0", FROM_0_9_0),
+        Lever("from-1-0-0", "speed", (), "the pretrained U-Net base, fit's recipe as it is", "from-0-9-0", FROM_1_0_0),
+        Lever(
+            "from-imagenet",
+            "speed",
+            (),
+            "ImageNet's encoder and a fresh decoder: no kitchen in between",
+            "from-1-0-0",
+            ("--from", "scratch"),
+        ),
+        Lever(
+            "frozen-encoder",
+            "speed",
+            ("optim.encoder_lr_scale=0",),
+            "the encoder and its BatchNorm statistics kept as the base has them: ImageNet's features intact",
+            "from-1-0-0",
+            FROM_1_0_0,
+        ),
+        Lever(
+            "slow-encoder",
+            "speed",
+            ("optim.encoder_lr_scale=0.1",),
+            "the encoder learning at a tenth of the decoder's rate",
+            "from-1-0-0",
+            FROM_1_0_0,
+        ),
     ]
 }
 
@@ -77,6 +108,7 @@ def fit_site(lever: Lever, site: str, budget: float, steps: int | None) -> dict:
 
     name = f"{lever.name}-{site}"
     options = [*SITES[site][1:], "--budget", f"{budget:g}", *(a for c in lever.changes for a in ("--set", c))]
+    options += lever.options
     if steps is not None:
         options += ["--steps", str(steps)]
     version = fit_once(Path(SITES[site][0]), name, OUT, *options)
@@ -127,7 +159,8 @@ def main() -> None:
         rows.append(f"| {name} | {lever.kind} | {changes} | {cells} | {delta} | {judged} |")
         print(rows[-1], flush=True)
     table = (
-        f"Machine: {cpu_description()}. {args.budget:g}-minute fits from the bundled 0.8.1; held-out δ1 and REL; "
+        f"Machine: {cpu_description()}. {args.budget:g}-minute fits (from the bundled 0.8.1 unless a lever says "
+        "otherwise); held-out δ1 and REL; "
         "a quality lever trains the steps of the lever it is measured against (Δ is against that lever: "
         "the baseline, or no-discriminator for regression-adam), a speed lever the steps its own plan fits "
         "in the budget.\n\n"

@@ -69,12 +69,13 @@ class Outputs:
                 bag.colour(stamp, frame.data, k)
             if self.with_sensor_depth and (sensor := frame.sensor_metres()) is not None:
                 bag.depth_image(topics["sensor_depth"], stamp, sensor)
+                bag.camera_info(topics["sensor_depth_info"], stamp, k.resized(sensor.shape[1], sensor.shape[0]))
             bag.frames += 1
 
 
 def stream_options(first: Any, given: dict[str, Any]) -> dict[str, Any]:
     """The stream's query: both outputs, raw, and the recording's own camera unless the user gave one."""
-    options = {"output": "both", "depth_encoding": "raw16", "cloud_encoding": "raw"}
+    options = {"output": "both", "depth_encoding": "raw32", "cloud_encoding": "raw"}
     camera = first.camera
     if camera is not None and given.get("fx") is None and given.get("fy") is None:
         options |= {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy}
@@ -164,7 +165,9 @@ def stream(
     with_sensor_depth: Annotated[
         bool, typer.Option(help="bag: a recording's own depth, registered to colour, beside the model's")
     ] = False,
-    namespace: Annotated[str, typer.Option(help="bag: the topics' namespace (realsense-ros's names)")] = "/camera",
+    namespace: Annotated[
+        str, typer.Option(help="bag: the topics' namespace (realsense-ros's names under it; not the sensor's own)")
+    ] = "/rgb2cloud",
     url: Annotated[str | None, typer.Option(help="service URL (default: RGB2CLOUD_HOST and _PORT)")] = None,
     model: Annotated[str | None, typer.Option(help="NAME or NAME:VERSION (default: the service's)")] = None,
     fx: Annotated[float | None, typer.Option(help="focal length, pixels (the recording's, else the model's)")] = None,

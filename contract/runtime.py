@@ -23,20 +23,77 @@ from contract.geometry import pad_to_multiple
 Precision = Literal["fp32", "int8"]
 #: How a generator runs: a graph at its own precision, or the fp32 graph on the CPU's bf16 units (OpenVINO).
 RunPrecision = Literal["fp32", "bf16", "int8"]
-#: The share of pixels whose reduced-precision depth (int8, bf16) must be within 1.25x of the fp32 depth (δ1
-#: with fp32 as the truth): at export on the parity photo, and again wherever a version loads, on the sample
-#: it ships, before that precision is served there.
-PARITY_AGREEMENT = 0.95
+#: When a reduced precision (int8, bf16) gives "the same depth" as fp32, pixel for pixel, on the version's sample
+#: photo at its own size and at twice it: at export (int8), and again wherever a version loads, before that
+#: precision is served there. Bounds chosen from what the real graphs measure, with a margin (docs/api.md,
+#: "Engines"): the bundled 0.9.0's int8 graph has a median relative difference of 0.019, 98.9% of pixels within
+#: 1.10x and a median ratio 1.004 at the worse of the two sizes (bench/same_depth.py); bf16 on AMX is far closer.
+#: A uniform 1.05x bias (median relative difference 0.05, median ratio 1.05) fails two bounds.
+SAME_DEPTH_MEDIAN_REL = 0.03
+SAME_DEPTH_WITHIN = 1.10
+SAME_DEPTH_SHARE = 0.95
+SAME_DEPTH_BIAS = 1.02
 
 
 def depth_agreement(reference: np.ndarray, depth: np.ndarray) -> dict[str, float]:
-    """How far reduced-precision depth is from fp32 depth: ``agreement`` (the share within 1.25x) and ``median_rel``."""
-    valid = (reference > 0) & (depth > 0)
-    if not valid.any():
-        return {"agreement": 0.0, "median_rel": 1.0}
-    ratio = np.maximum(depth[valid] / reference[valid], reference[valid] / depth[valid])
-    median_rel = float(np.median(np.abs(depth[valid] - reference[valid]) / reference[valid]))
-    return {"agreement": float((ratio < 1.25).mean()), "median_rel": median_rel}
+    """How far reduced-precision depth is from fp32 depth, over every pixel fp32 gives depth.
+
+    ``lost``: the share of those pixels with no finite positive depth here (never allowed);
+    ``median_rel``: the median of |depth / fp32 - 1|; ``within``: the share within ``SAME_DEPTH_WITHIN``x;
+    ``median_ratio``: the median of depth / fp32, which a uniform bias moves and noise does not.
+    """
+    expected = np.isfinite(reference) & (reference > 0)
+    given = np.isfinite(depth) & (depth > 0)
+    if not expected.any():
+        return {"lost": 0.0, "median_rel": 0.0, "within": 1.0, "median_ratio": 1.0}
+    both = expected & given
+    lost = float((expected & ~given).sum() / expected.sum())
+    if not both.any():
+        return {"lost": lost, "median_rel": 1.0, "within": 0.0, "median_ratio": 0.0}
+    ratio = depth[both].astype(np.float64) / reference[both]
+    within = float((np.abs(np.log(ratio)) < np.log(SAME_DEPTH_WITHIN)).sum() / expected.sum())
+    return {
+        "lost": lost,
+        "median_rel": float(np.median(np.abs(ratio - 1))),
+        "within": within,
+        "median_ratio": float(np.median(ratio)),
+    }
+
+
+def disagreement(parity: dict[str, float]) -> str | None:
+    """Why ``depth_agreement``'s figures are not "the same depth" (every bound that fails), or None when they are."""
+    reasons = []
+    if parity["lost"] > 0:
+        reasons.append(f"{parity['lost'] * 100:.3g}% of the pixels fp32 gives depth have none")
+    if parity["median_rel"] > SAME_DEPTH_MEDIAN_REL:
+        reasons.append(f"median relative difference {parity['median_rel']:.2%} (at most {SAME_DEPTH_MEDIAN_REL:.0%})")
+    if parity["within"] < SAME_DEPTH_SHARE:
+        reasons.append(
+            f"{parity['within']:.1%} of pixels within {SAME_DEPTH_WITHIN:.2f}x (at least {SAME_DEPTH_SHARE:.0%})"
+        )
+    if not 1 / SAME_DEPTH_BIAS <= parity["median_ratio"] <= SAME_DEPTH_BIAS:
+        reasons.append(f"depth {parity['median_ratio']:.3f}x fp32's at the median (a bias; at most {SAME_DEPTH_BIAS}x)")
+    return "; ".join(reasons) or None
+
+
+def check_sizes(photo: np.ndarray) -> list[np.ndarray]:
+    """The photo reduced precisions are checked on, at its own size and at twice it (bilinear): a graph may
+    differ only where the service runs it larger than the sample."""
+    from PIL import Image
+
+    height, width = photo.shape[:2]
+    larger = Image.fromarray(photo).resize((2 * width, 2 * height), Image.Resampling.BILINEAR)
+    return [photo, np.asarray(larger)]
+
+
+def worst_agreement(parities: list[dict[str, float]]) -> dict[str, float]:
+    """The worst of each figure over several photos (the median ratio furthest from 1)."""
+    return {
+        "lost": max(p["lost"] for p in parities),
+        "median_rel": max(p["median_rel"] for p in parities),
+        "within": min(p["within"] for p in parities),
+        "median_ratio": max((p["median_ratio"] for p in parities), key=lambda r: abs(np.log(max(r, 1e-9)))),
+    }
 
 
 class ExportedGenerator(Protocol):

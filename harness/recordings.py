@@ -163,9 +163,10 @@ def write_aligned_bag(
     depth: str = "16UC1",
     info: Intrinsics | None = None,
     start: float = 100.0,
+    frame: str = "camera",
 ) -> Path:
     """A realsense-ros style recording: colour, depth aligned to colour, a CameraInfo each; 30 fps, 3 ms apart,
-    from ``start`` seconds.
+    from ``start`` seconds, in the colour camera's ``frame`` (a ROS 1 style "/camera" is possible too).
 
     The CameraInfo is mOSD's camera at the frames' size, or ``info`` (a driver's camera of another size).
     """
@@ -176,11 +177,11 @@ def write_aligned_bag(
             if colour == "jpeg":
                 bag.jpeg("/camera/color/image_raw/compressed", t, rgb)
             else:
-                bag.image("/camera/color/image_raw", t, rgb[..., ::-1] if colour == "bgr8" else rgb, colour)
-            bag.camera_info("/camera/color/camera_info", t, k)
+                bag.image("/camera/color/image_raw", t, rgb[..., ::-1] if colour == "bgr8" else rgb, colour, frame)
+            bag.camera_info("/camera/color/camera_info", t, k, frame)
             values = mm.astype(np.float32) / 1000.0 if depth == "32FC1" else mm
-            bag.image("/camera/aligned_depth_to_color/image_raw", t + 0.003, values, depth)
-            bag.camera_info("/camera/aligned_depth_to_color/camera_info", t + 0.003, k)
+            bag.image("/camera/aligned_depth_to_color/image_raw", t + 0.003, values, depth, frame)
+            bag.camera_info("/camera/aligned_depth_to_color/camera_info", t + 0.003, k, frame)
             bag.image("/camera/infra1/image_rect_raw", t, rgb[..., 0], "mono8")  # an infrared stream beside them
     return path
 

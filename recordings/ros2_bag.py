@@ -9,9 +9,11 @@ Per frame, stamped with the source frame's time and in its colour frame:
   per valid pixel (``is_dense``);
 - optionally the colour photo (``CompressedImage``, as sent) and the sensor's own depth (32FC1).
 
-Topic names follow realsense-ros under a namespace (``/camera`` by default). The bag's metadata is
-written when the writer closes, which ``close`` does on any exit, Ctrl-C included, so what was
-written stays a readable bag.
+Topic names follow realsense-ros under a namespace of our own (``/rgb2cloud`` by default), so a bag played
+beside the real sensor's driver never publishes on its ``/camera`` topics. Every image topic has its
+CameraInfo beside it. Frame ids are tf2's: no leading slash (ROS 1 bags often carry one, which tf2
+refuses). The bag's metadata is written when the writer closes, which ``close`` does on any exit,
+Ctrl-C included, so what was written stays a readable bag.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ TOPICS = {
     "colour": "color/image_raw/compressed",
     "colour_info": "color/camera_info",
     "sensor_depth": "sensor/aligned_depth_to_color/image_raw",
+    "sensor_depth_info": "sensor/aligned_depth_to_color/camera_info",
 }
 
 
@@ -46,7 +49,7 @@ TOPICS = {
 class Topics:
     """Where each message goes: ``TOPICS`` under ``namespace`` (``/camera/aligned_depth_to_color/image_raw``)."""
 
-    namespace: str = "/camera"
+    namespace: str = "/rgb2cloud"
 
     def __post_init__(self) -> None:
         if not self.namespace.startswith("/") or self.namespace.endswith("/"):
@@ -78,7 +81,7 @@ class DepthBag:
         if Path(path).exists():
             raise UserError(f"{path}: exists; a bag is written into a new folder")
         self.store = get_typestore(Stores.ROS2_HUMBLE)
-        self.topics, self.frame_id = topics, frame_id
+        self.topics, self.frame_id = topics, frame_id.lstrip("/")  # tf2 refuses a leading slash
         self.writer = Writer(Path(path), version=8, storage_plugin=StoragePlugin.MCAP)
         self.writer.open()
         self._connections: dict[str, Any] = {}

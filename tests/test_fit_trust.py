@@ -131,3 +131,45 @@ def test_a_checkpoint_is_evaluated_without_its_training_data(trained_checkpoint,
     torch.save(state, moved)
     evaluate_cli(moved, tmp_path / "eval", "850-851")
     assert len(json.loads((tmp_path / "eval" / "metrics.json").read_text())["per_image"]) == 2
+
+
+def test_a_fit_off_a_terminal_prints_each_phase_and_a_line_every_interval(capsys):
+    """Under nohup, systemd or CI a fit must show signs of life: a line when each phase starts, and one at least
+    every interval from a thread of its own, even while a phase runs no step (here, a quiet sleep)."""
+    import time
+
+    from trainer.fit.progress import Progress
+
+    progress = Progress(600, time.monotonic(), live=False, every_s=0.1)
+    progress.phase("measuring")
+    time.sleep(0.35)
+    progress.phase("training")
+    progress.close()
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[0].startswith("measuring: ") and lines[-1].startswith("training: ")
+    assert sum(line.startswith("measuring: ") for line in lines) >= 3, lines  # the phase's line, then the thread's
+    assert all("/600 s [" in line for line in lines)
+
+
+def test_a_second_fit_into_a_folder_a_fit_is_writing_stops_at_once_naming_it(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from conftest import REPO
+
+    from trainer.fit.progress import RunLock
+
+    run = tmp_path / "run"
+    with RunLock(run):
+        args = ["fit", str(SEVEN_SCENES), "--format", "7scenes", "--name", "x", "--licence", "y", "--out", str(run)]
+        result = subprocess.run(
+            [sys.executable, "-m", "cli", *args, "--budget", "1"], cwd=REPO, capture_output=True, text=True
+        )
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert result.stderr.strip().splitlines()[-1] == (
+        f"error: {run}: a fit is already writing here (pid {os.getpid()}, started "
+        f"{(run / 'fit.lock').read_text().split('started ')[1].strip()}); wait for it to end, or pass --out elsewhere"
+    )
+    with RunLock(run):  # released when its holder left, and free again
+        pass

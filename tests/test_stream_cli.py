@@ -86,9 +86,9 @@ def test_a_60_frame_video_becomes_a_bag_of_depth_camera_info_and_clouds(service,
     assert len(stamps) == 60
     stream_cli(service, str(tmp_path / "kitchen.mp4"), "--bag", str(tmp_path / "bag"), "--stride", "4")
     topics = read_bag(tmp_path / "bag")
-    depth = topics["/camera/aligned_depth_to_color/image_raw"]
-    info = topics["/camera/aligned_depth_to_color/camera_info"]
-    clouds = topics["/camera/depth/color/points"]
+    depth = topics["/rgb2cloud/aligned_depth_to_color/image_raw"]
+    info = topics["/rgb2cloud/aligned_depth_to_color/camera_info"]
+    clouds = topics["/rgb2cloud/depth/color/points"]
     assert [stamp_ns(m) for _, _, m in depth] == stamps == [stamp_ns(m) for _, _, m in clouds]
     assert [t for _, t, _ in depth] == stamps  # the bag's own times too
     for _, _, image in depth[:3]:
@@ -115,7 +115,8 @@ def test_a_ros2_bag_streams_with_its_stamps_camera_frame_and_sensor_depth(servic
         for p in photos
     ]
     # Stamps of today's size with odd nanoseconds: a float of seconds on the way would lose them.
-    source = write_aligned_bag(tmp_path / "recording", "mcap", frames, start=1_764_000_000.123456789)
+    # A ROS 1 style frame id, "/camera": tf2 refuses the slash, so the bag's messages go without it.
+    source = write_aligned_bag(tmp_path / "recording", "mcap", frames, start=1_764_000_000.123456789, frame="/camera")
     colour = read_bag(source)["/camera/color/image_raw"]
     assert stamp_ns(colour[1][2]) % 1000 != 0
     out = tmp_path / "streamed"
@@ -123,7 +124,18 @@ def test_a_ros2_bag_streams_with_its_stamps_camera_frame_and_sensor_depth(servic
     topics = read_bag(out)
     depth = topics["/cam/aligned_depth_to_color/image_raw"]
     assert [stamp_ns(m) for _, _, m in depth] == [stamp_ns(m) for _, _, m in colour]
-    assert {m.header.frame_id for _, _, m in depth} == {"camera"}  # the bag's own colour frame
+    assert {m.header.frame_id for _, _, m in depth} == {"camera"}  # the bag's own colour frame, without the slash
+    # Every image topic has its CameraInfo: the photo's and the sensor depth's too, each at its image's size.
+    for image, info_topic in (
+        ("color/image_raw/compressed", "color/camera_info"),
+        ("sensor/aligned_depth_to_color/image_raw", "sensor/aligned_depth_to_color/camera_info"),
+    ):
+        assert len(topics[f"/cam/{info_topic}"]) == len(topics[f"/cam/{image}"]) == len(depth), info_topic
+    sensor_image, sensor_info = (
+        topics["/cam/sensor/aligned_depth_to_color/image_raw"][0][2],
+        topics["/cam/sensor/aligned_depth_to_color/camera_info"][0][2],
+    )
+    assert (sensor_info.width, sensor_info.height) == (sensor_image.width, sensor_image.height)
     (_, _, info), *_ = topics["/cam/aligned_depth_to_color/camera_info"]
     k = MOSD_CAMERA
     assert list(info.k) == pytest.approx([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1])  # the recording's camera
@@ -136,6 +148,9 @@ def test_a_ros2_bag_streams_with_its_stamps_camera_frame_and_sensor_depth(servic
     first = depth[0][2]
     metres = np.frombuffer(first.data, dtype="<f4").reshape(first.height, first.width)
     np.testing.assert_array_equal(np.rint(np.nan_to_num(metres) * 1000), np.rint(served * 1000))
+    # Carried as float32 end to end (the stream's raw32), not rounded to the millimetre on the way.
+    fraction = np.abs(metres * 1000 - np.rint(metres * 1000))[np.isfinite(metres)]
+    assert np.median(fraction) > 0.1
     # The cloud, decoded from its bytes: xyz and the packed rgb are /pointcloud's points, in its order.
     cloud = topics["/cam/depth/color/points"][0][2]
     records = np.frombuffer(cloud.data, dtype="<f4").reshape(-1, 4)
@@ -226,11 +241,11 @@ def test_ctrl_c_mid_stream_leaves_a_bag_that_reads(service, tmp_path):
     assert process.returncode == 130, stderr
     assert "stopped (Ctrl-C)" in stderr and "Traceback" not in stderr
     topics = read_bag(out)
-    depth = topics["/camera/aligned_depth_to_color/image_raw"]
+    depth = topics["/rgb2cloud/aligned_depth_to_color/image_raw"]
     assert 0 < len(depth) < 150
     # Each frame whole or not at all: as many camera infos and clouds as depth images.
-    assert len(topics["/camera/aligned_depth_to_color/camera_info"]) == len(topics["/camera/depth/color/points"])
-    assert len(topics["/camera/depth/color/points"]) == len(depth)
+    assert len(topics["/rgb2cloud/aligned_depth_to_color/camera_info"]) == len(topics["/rgb2cloud/depth/color/points"])
+    assert len(topics["/rgb2cloud/depth/color/points"]) == len(depth)
 
 
 def test_bad_sources_and_options_are_one_line_errors(service, tmp_path):
@@ -274,6 +289,6 @@ def test_a_webcam_through_v4l2loopback(service, tmp_path):
         time.sleep(8)
         process.send_signal(signal.SIGINT)
         process.communicate(timeout=60)
-        assert len(read_bag(tmp_path / "bag")["/camera/aligned_depth_to_color/image_raw"]) > 0
+        assert len(read_bag(tmp_path / "bag")["/rgb2cloud/aligned_depth_to_color/image_raw"]) > 0
     finally:
         feeder.terminate()

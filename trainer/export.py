@@ -40,7 +40,7 @@ from contract.codec import INPUT_ENCODING, DepthEncoding
 from contract.errors import UserError
 from contract.geometry import Intrinsics
 from contract.resample import inference_max_pixels, to_model_camera
-from contract.runtime import PARITY_AGREEMENT, OnnxGenerator, Precision
+from contract.runtime import OnnxGenerator, Precision, check_sizes, disagreement, worst_agreement
 from recordings.frames import FrameReader
 from trainer.checkpoint import load_graph
 from trainer.config import DataSource, RunConfig
@@ -146,12 +146,10 @@ def publish_int8(
     done = quantize_generator(folder / ONNX_FILE, int8, photos, multiple, CALIBRATION, FP32_NODES, QUANTISED_OPS)
     # The parity photo has no camera of its own: it is taken to have the model's field of view.
     shown, _ = to_model_camera(image, camera.resized(image.shape[1], image.shape[0]), camera, inference_max_pixels())
-    parity = int8_parity(folder / ONNX_FILE, folder / INT8_ONNX_FILE, shown, multiple, encoding)
-    if parity["agreement"] < PARITY_AGREEMENT:
-        raise ParityError(
-            f"{INT8_ONNX_FILE}: int8 depth agrees with fp32 within 1.25x on {parity['agreement']:.1%} of the parity "
-            f"image's pixels (< {PARITY_AGREEMENT:.0%})"
-        )
+    graphs = folder / ONNX_FILE, folder / INT8_ONNX_FILE
+    parity = worst_agreement([int8_parity(*graphs, photo, multiple, encoding) for photo in check_sizes(shown)])
+    if (why := disagreement(parity)) is not None:
+        raise ParityError(f"{INT8_ONNX_FILE}: int8 depth is not fp32's on the parity image: {why}")
     Image.fromarray(shown).save(folder / INT8_SAMPLE_FILE)
     return Int8Graph(
         method="ONNX Runtime static QDQ: per-channel int8 weights in 7 bits (reduce_range: no saturation on CPUs "

@@ -9,14 +9,11 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
-from tqdm import tqdm
 
 from contract.card import DataRef, FitRecord, ModelCard, list_versions, load_card, next_version
 from contract.errors import UserError
@@ -30,6 +27,7 @@ from recordings.manifest import ManifestReader, write_manifest
 from trainer.config import DataSource, RunConfig, apply_overrides, migrate_config
 from trainer.fit.budget import Workload, measure_seconds, plan_training
 from trainer.fit.inspect import inspect_recording, readable
+from trainer.fit.progress import Progress, RunLock
 from trainer.fit.scoring import score_holdout
 from trainer.fit.split import MIN_PAIRS, Split, split_recording
 from trainer.fit.state import FitState, new_fit_id, published_by, save_state
@@ -96,58 +94,16 @@ def start_config(start: Path) -> dict[str, Any]:
     }
 
 
-class Progress:
-    """One bar for the whole command: its phase, the seconds of budget used, and the ETA.
-
-    On a terminal the bar redraws in place. Elsewhere (a log file, CI) it is printed once, where the
-    command ends: a redraw there would be one more line of the log each time.
-    """
-
-    FORMAT = "{desc}{percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]"  # desc ends ": "
-
-    def __init__(self, budget_s: float, started: float, live: bool | None = None):
-        self.started = started
-        self.live = sys.stderr.isatty() if live is None else live
-        self.bar = tqdm(
-            total=round(budget_s), desc="reading", bar_format=self.FORMAT, dynamic_ncols=True, disable=not self.live
-        )
-        self.description, self.total, self.n = "reading", round(budget_s), 0
-
-    def phase(self, name: str) -> None:
-        self.description = name
-        self.bar.set_description(name)
-        self.tick()
-
-    def tick(self, *_: int) -> None:
-        self.n = min(self.total, round(time.monotonic() - self.started))
-        self.bar.n = self.n
-        self.bar.refresh()
-
-    def say(self, line: str) -> None:
-        self.bar.write(line)
-
-    def finish(self) -> None:
-        """The command is done: the bar ends full, at the seconds it took (within the budget, or past it)."""
-        self.tick()
-        self.total = self.bar.total = max(1, self.n)
-        self.description = "done"
-        self.bar.set_description("done")
-
-    def close(self) -> None:
-        """Stop the bar where the command ended (full when it finished), before anything else is printed."""
-        self.tick()
-        self.bar.close()
-        if not self.live:
-            elapsed = time.monotonic() - self.started
-            line = tqdm.format_meter(
-                self.n, self.total, elapsed, ncols=80, prefix=f"{self.description}: ", bar_format=self.FORMAT
-            )
-            print(line, file=sys.stderr)
-
-
 def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
     """Fit a model of the recorded place; returns the published version folder."""
     started = time.monotonic()
+    run = options.run_dir
+    with RunLock(run):
+        return _fit_locked(options, started, echo)
+
+
+def _fit_locked(options: FitOptions, started: float, echo: Callable[[str], None]) -> Path:
+    """``fit`` while it alone writes into its run folder."""
     run = options.run_dir
     state_file = run / "fit.json"
     if options.resume and not state_file.is_file():
