@@ -67,6 +67,8 @@ def main() -> None:
         # A stream frame up to this size is read and, if over the stream's own limit, answered with an error
         # of its own; only beyond it does the WebSocket layer close the stream (1009).
         ws_max_size=STREAM_TRANSPORT_FACTOR * settings.stream_max_frame_bytes,
+        # Messages read ahead of the stream: each may be ws_max_size, so this bounds what one client can queue.
+        ws_max_queue=settings.stream_read_ahead,
         # Frames are JPEG or PNG and answers PNG or raw depth: deflating them again costs both ends more
         # time than it saves on a network.
         ws_per_message_deflate=False,

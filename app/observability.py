@@ -50,7 +50,8 @@ class ServiceMetrics:
         self.streams_open = Gauge("rgb2cloud_streams_open", "WebSocket streams open now", registry=self.registry)
         self.streams_refused = Counter(
             "rgb2cloud_streams_refused",
-            "streams refused at the door: full (closed with 1013) or origin (403, not allowed by CORS)",
+            "streams refused at the door, full (closed with 1013) or origin (403, not allowed by CORS), or closed "
+            "for not_reading their answers (1008)",
             ["reason"],
             registry=self.registry,
         )

@@ -113,6 +113,19 @@ class Settings(BaseSettings):
         3840 * 2160, ge=1, description="a stream frame's decoded width x height limit (4K UHD by default)"
     )
     stream_idle_s: float = Field(30, gt=0, description="a stream that sends nothing for this long is closed (1001)")
+    stream_send_timeout_s: float = Field(
+        10,
+        gt=0,
+        description="a stream whose client takes no answer for this long (it stopped reading) is closed (1008): "
+        "the service never holds more than one unsent answer for it",
+    )
+    stream_read_ahead: int = Field(
+        2,
+        ge=1,
+        le=32,
+        description="messages the WebSocket layer reads ahead of a stream (uvicorn's ws_max_queue); with the "
+        "message size limit it bounds what a client can make the service hold (docs/api.md)",
+    )
 
     @model_validator(mode="after")
     def _coherent(self) -> Settings:

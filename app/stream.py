@@ -43,6 +43,14 @@ router = APIRouter()
 STREAM_TRANSPORT_FACTOR = 4
 #: Close codes (RFC 6455): the service is full (try again later), idle, a policy refused, a server fault.
 TRY_AGAIN_LATER, GOING_AWAY, POLICY, SERVER_ERROR = 1013, 1001, 1008, 1011
+#: Acknowledgements and errors (small JSON messages) a stream may owe its client before it is closed for
+#: sending text messages faster than it reads their answers.
+NOTICES_OWED = 16
+
+
+class NotReading(Exception):
+    """The client stopped reading: what it is owed cannot be sent, and would only pile up."""
+
 
 Focal = Annotated[float | None, Field(**FOCAL_RANGE, allow_inf_nan=False)]
 Centre = Annotated[float | None, Field(**CENTRE_RANGE, allow_inf_nan=False)]
@@ -216,20 +224,48 @@ class Stream:
         self.mailbox = Mailbox()
         self.smoother = self._smoother()
         self._send_lock = asyncio.Lock()
+        #: What the reader owes the client (option acknowledgements, errors without a frame), sent by a task
+        #: of its own so that the reader never waits on a client that does not read.
+        self.notices: asyncio.Queue[dict[str, Any]] = asyncio.Queue(NOTICES_OWED)
 
     def _smoother(self) -> TemporalFilter | None:
         return TemporalFilter() if self.options.smooth == "temporal" else None
 
     async def send(self, header: dict[str, Any], payloads: Sequence[bytes] = ()) -> None:
-        """A JSON header and the binary messages it announces, never interleaved with another answer."""
+        """A JSON header and the binary messages it announces, never interleaved with another answer.
+
+        A client that takes none of it for ``stream_send_timeout_s`` has stopped reading: ``NotReading``.
+        """
         async with self._send_lock:
-            await self.socket.send_text(json.dumps(header))
-            for payload in payloads:
-                await self.socket.send_bytes(payload)
+            try:
+                async with asyncio.timeout(self.settings.stream_send_timeout_s):
+                    await self.socket.send_text(json.dumps(header))
+                    for payload in payloads:
+                        await self.socket.send_bytes(payload)
+            except TimeoutError:
+                raise NotReading(
+                    f"not reading: an answer waited {self.settings.stream_send_timeout_s:g} s to be taken"
+                ) from None
 
     async def refuse(self, status: int, detail: str, seq: int | None = None) -> None:
+        """A frame's error, in order with the answers (the answerer's), or one owed to a message (the reader's)."""
         self.metrics.stream_frames.labels("refused" if seq is not None else "bad_message").inc()
-        await self.send({"type": "error", "seq": seq, "status": status, "detail": detail})
+        error = {"type": "error", "seq": seq, "status": status, "detail": detail}
+        await (self.send(error) if seq is not None else self.owe(error))
+
+    async def owe(self, notice: dict[str, Any]) -> None:
+        """Queue a notice for the notifier; a client owed ``NOTICES_OWED`` already is not reading them."""
+        try:
+            self.notices.put_nowait(notice)
+        except asyncio.QueueFull:
+            raise NotReading(
+                f"not reading: {NOTICES_OWED} answers to its text messages are waiting to be taken"
+            ) from None
+
+    async def notify(self) -> None:
+        """Send what the reader owes, in order, for as long as the stream is open."""
+        while True:
+            await self.send(await self.notices.get())
 
     async def read(self) -> str:
         """Read until the client leaves or idles; returns why the stream ends."""
@@ -267,7 +303,7 @@ class Stream:
             return
         self.options = options
         self.smoother = self._smoother()  # another model or camera: what came before is no guide
-        await self.send({"type": "options", "options": options.model_dump(exclude_unset=True)})
+        await self.owe({"type": "options", "options": options.model_dump(exclude_unset=True)})
 
     async def answer(self) -> None:
         """Answer the waiting frame, one at a time, for as long as the stream is open."""
@@ -320,15 +356,21 @@ class Stream:
         }
 
     async def run(self) -> None:
-        reader = asyncio.create_task(self.read())
-        answerer = asyncio.create_task(self.answer())
-        done, _ = await asyncio.wait({reader, answerer}, return_when=asyncio.FIRST_COMPLETED)
-        answerer.cancel()
-        reader.cancel()
-        await asyncio.gather(reader, answerer, return_exceptions=True)
-        failed = next((t for t in (reader, answerer) if t in done and t.exception() is not None), None)
+        tasks = [asyncio.create_task(c) for c in (self.read(), self.answer(), self.notify())]
+        reader = tasks[0]
+        done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        failed = next((t for t in tasks if t in done and not t.cancelled() and t.exception() is not None), None)
         if failed is not None and isinstance(failed.exception(), WebSocketDisconnect | OSError):
             return  # the client left while an answer was being read or sent
+        if failed is not None and isinstance(failed.exception(), NotReading):
+            self.metrics.streams_refused.labels("not_reading").inc()
+            log.warning("closed a stream: %s", failed.exception())
+            with contextlib.suppress(WebSocketDisconnect, OSError, RuntimeError):
+                await asyncio.wait_for(self.socket.close(POLICY, str(failed.exception())[:120]), 5)
+            return
         if failed is not None:
             log.error("stream failed", exc_info=failed.exception())
             await self.socket.close(SERVER_ERROR, "the service failed on this stream; it is logged")

@@ -362,3 +362,118 @@ def test_which_origins_may_open_a_stream(origin, host, allowed, opens):
     from app.stream import origin_allowed
 
     assert origin_allowed(origin, host, allowed) is opens
+
+
+class SilentClient:
+    """The worst client we could write: a WebSocket handshake by hand, then it sends as fast as TCP lets it and
+    reads nothing until it chooses to (no library reading in the background, as websockets' clients do)."""
+
+    def __init__(self, url: str):
+        import base64
+        import os
+
+        host, port = url.removeprefix("http://").split(":")
+        self.sock = socket.create_connection((host, int(port)), timeout=30)
+        key = base64.b64encode(os.urandom(16)).decode()
+        request = (
+            f"GET /v1/stream?output=both&depth_encoding=raw32&cloud_encoding=raw HTTP/1.1\r\nHost: {host}:{port}\r\n"
+            "Upgrade: websocket\r\nConnection: Upgrade\r\n"
+            f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n"
+        )
+        self.sock.sendall(request.encode())
+        response = b""
+        while b"\r\n\r\n" not in response:
+            response += self.sock.recv(1)
+        assert response.startswith(b"HTTP/1.1 101"), response
+
+    def send(self, payload: bytes, text: bool = False) -> None:
+        """One masked frame (RFC 6455 5.2): FIN, the opcode, the length, the mask, the masked payload."""
+        n = len(payload)
+        head = bytes([0x81 if text else 0x82])
+        if n < 126:
+            head += bytes([0x80 | n])
+        elif n < 65536:
+            head += bytes([0x80 | 126]) + n.to_bytes(2, "big")
+        else:
+            head += bytes([0x80 | 127]) + n.to_bytes(8, "big")
+        mask = np.random.default_rng(n).integers(0, 256, 4, dtype=np.uint8)
+        body = np.frombuffer(payload, np.uint8) ^ np.resize(mask, n)
+        self.sock.sendall(head + mask.tobytes() + body.tobytes())
+
+    def _exact(self, n: int) -> bytes:
+        data = b""
+        while len(data) < n:
+            chunk = self.sock.recv(min(n - len(data), 1 << 20))
+            if not chunk:
+                raise EOFError("the service closed the connection without a close frame")
+            data += chunk
+        return data
+
+    def close_frame(self) -> tuple[int, str]:
+        """Read past every answer it left unread to the close frame: its code and reason."""
+        while True:
+            first, second = self._exact(2)
+            n = second & 0x7F
+            n = int.from_bytes(self._exact(2 if n == 126 else 8), "big") if n >= 126 else n
+            payload = self._exact(n)
+            if first & 0x0F == 0x8:
+                return int.from_bytes(payload[:2], "big"), payload[2:].decode()
+
+
+@pytest.mark.parametrize("texts", [False, True], ids=["frames", "frames-and-options"])
+def test_a_client_that_stops_reading_and_floods_is_closed_and_its_memory_bounded(texts):
+    """A client that sends frames (and options) as fast as it can and reads nothing: the service keeps reading
+    (the reader never waits on the sender), holds at most the documented bound for it, closes it with 1008 and a
+    reason once an answer waits ``stream_send_timeout_s`` (or 16 acknowledgements are owed), and stays ready."""
+    frame_limit, read_ahead, send_timeout = 1_000_000, 2, 2
+    with running_service(
+        bundled_registry=BUNDLED_REGISTRY,
+        threads="2",
+        engine="onnxruntime",
+        stream_max_frame_bytes=str(frame_limit),
+        stream_read_ahead=str(read_ahead),
+        stream_send_timeout_s=str(send_timeout),
+    ) as running:
+        url = running.url
+        rss = "process_resident_memory_bytes"
+        warm = SilentClient(url)  # one frame answered first, so the baseline has inference's buffers
+        warm.send(FRAMES[0])
+        time.sleep(2)
+        baseline, peak = metric(url, rss), [0.0]
+        stop = threading.Event()
+
+        def watch() -> None:
+            while not stop.is_set():
+                peak[0] = max(peak[0], metric(url, rss))
+                time.sleep(0.2)
+
+        watcher = threading.Thread(target=watch, daemon=True)
+        watcher.start()
+        junk = np.random.default_rng(0).integers(0, 256, 4 * frame_limit - 64, dtype=np.uint8).tobytes()
+        flood = SilentClient(url)
+        started = time.monotonic()
+        while time.monotonic() - started < 3:  # frames, frames over the limit at the transport's size, options
+            flood.send(FRAMES[int(time.monotonic() * 10) % len(FRAMES)])
+            flood.send(junk)
+            if texts:
+                flood.send(json.dumps({"stride": 2}).encode(), text=True)
+        deadline = time.monotonic() + 30
+        while metric(url, 'rgb2cloud_streams_refused_total{reason="not_reading"}') < 1 and time.monotonic() < deadline:
+            time.sleep(0.2)
+        code, reason = flood.close_frame()
+        stop.set()
+        watcher.join()
+        assert code == 1008 and reason.startswith("not reading: "), (code, reason)
+        # The bound of docs/api.md: the transport's read-ahead and the message being read, each up to the
+        # transport's message size, the one frame waiting, and one unsent answer (depth and cloud of 640x480,
+        # float32 and raw: 4 + 15 bytes a pixel); 64 MB beside it for the allocator and the kernel's buffers.
+        transport = 4 * frame_limit
+        bound = (read_ahead + 2) * transport + 19 * 640 * 480 + 64e6
+        assert peak[0] - baseline <= bound, (peak[0] - baseline) / 1e6
+        assert httpx.get(f"{url}/readyz", timeout=5).status_code == 200
+        with open_stream(f"{url}", output="depth", depth_encoding="raw16") as fresh:
+            fresh.send(FRAMES[1])
+            header, payloads = receive(fresh)
+            assert header["type"] == "frame" and len(payloads) == 1
+        warm.sock.close()
+        flood.sock.close()
