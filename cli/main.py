@@ -132,7 +132,7 @@ def export(
     from app.settings import Settings
     from contract.card import load_card
     from contract.registries import Registries
-    from contract.runtime import SAME_DEPTH_WITHIN
+    from contract.runtime import agreement_line
     from contract.spec import parse_inference_options
     from trainer.export import export_and_publish, metrics_from_report
 
@@ -157,12 +157,7 @@ def export(
     for check, diff in card.parity.items():
         typer.echo(f"parity {check}: max abs diff {diff:.2e}")
     if card.int8:
-        parity = card.int8.parity
-        typer.echo(
-            f"parity int8 (the worse of the parity photo and its double): median relative difference "
-            f"{parity['median_rel']:.2%}, {parity['within']:.1%} of pixels within {SAME_DEPTH_WITHIN:.2f}x, "
-            f"median ratio {parity['median_ratio']:.3f}, depth lost on {parity['lost']:.2%}"
-        )
+        typer.echo(f"parity int8 (the worse of the parity photo and its double): {agreement_line(card.int8.parity)}")
     typer.echo(f"published {target}")
 
 

@@ -76,6 +76,14 @@ def disagreement(parity: dict[str, float]) -> str | None:
     return "; ".join(reasons) or None
 
 
+def agreement_line(parity: dict[str, float]) -> str:
+    """``depth_agreement``'s figures in one line, as ``rgb2cloud export`` prints them."""
+    return (
+        f"median relative difference {parity['median_rel']:.2%}, {parity['within']:.1%} of pixels within "
+        f"{SAME_DEPTH_WITHIN:.2f}x, median ratio {parity['median_ratio']:.3f}, depth lost on {parity['lost']:.2%}"
+    )
+
+
 def check_sizes(photo: np.ndarray) -> list[np.ndarray]:
     """The photo reduced precisions are checked on, at its own size and at twice it (bilinear): a graph may
     differ only where the service runs it larger than the sample."""

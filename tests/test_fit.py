@@ -107,7 +107,10 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
     result = run_cli(*args[:at], *args[at + 2 :], "--precision", "int8")
     stdout = result.stdout
     assert time.monotonic() - began < 60 + BUDGET_MARGIN_S  # the budget holds, the int8 graph's calibration in it
-    assert result.stderr.count("%|") == 1, result.stderr  # not a terminal: the bar is printed once, at the end
+    # Not a terminal: no bar redrawn in place, but a line as each phase starts (and every 30 s), in order.
+    phases = list(dict.fromkeys(line.split(":")[0] for line in result.stderr.splitlines() if "%|" in line))
+    assert "\r" not in result.stderr
+    assert phases == ["inspecting", "measuring", "training", "scoring", "publishing", "done"], result.stderr
     assert "pairs: 24 found, 0 skipped" in stdout and "split: train 16, selection 2" in stdout
     assert "| fitted model |" in stdout and "| tiny 0.1.0, zero-shot (the start) |" in stdout
     own = tmp_path / "data" / "rgb2cloud" / "models"
