@@ -208,7 +208,8 @@ def _run_config(
     source = {"format": "csv", "licence": options.licence, "colour_camera": colour.model_dump() if colour else None}
     height, width = read_pair(pairs[0]).depth.shape
     scale = min(1.0, math.sqrt(TRAINED_PIXELS / (height * width)))  # what the service shrinks this camera's photos to
-    spec = GeneratorSpec.model_validate(tree["generator"])
+    # The crop is a multiple of the generator's stride: of the generator the run trains, --set included.
+    spec = GeneratorSpec.model_validate(apply_overrides(tree, options.overrides)["generator"])
     work, multiple = spec.work_scale, spec.core_multiple
     size = [int(height * scale / work) // multiple * multiple, int(width * scale / work) // multiple * multiple]
     tree["data"] = {
