@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
@@ -83,69 +84,137 @@ class Answer(Generic[T]):
         return f"{self.header['status']}: {self.header['detail']}"
 
 
+#: A file source's frame refused with 503 (the service's inference queue was full) is sent again this many
+#: times, waiting 1, 2, 4, ... s (at most ``RETRY_WAIT_MAX_S``) before each, as ``rgb2cloud client`` retries a POST.
+RETRIES, RETRY_WAIT_MAX_S = 5, 30.0
+
+
+@dataclass
+class Sent(Generic[T]):
+    """A frame on its way: its place in the source, the item, and how often it was sent."""
+
+    order: int
+    item: T
+    tries: int = 1
+
+
+class Conversation(Generic[T]):
+    """What ``answers`` shares between its sender thread and the reading loop: each binary message sent
+    gets the next ``seq``, as the service counts them, under one lock whichever thread sends it."""
+
+    def __init__(self, socket: ClientConnection, in_flight: int):
+        self.socket, self.in_flight = socket, in_flight
+        self.sent: dict[int, Sent[T]] = {}  # not answered yet, by seq: each is dropped once answered
+        self.seq = 0
+        self.lock = threading.Lock()
+        self.window = threading.Semaphore(in_flight)
+        self.ended, self.done = threading.Event(), threading.Event()
+        self.failure: list[BaseException] = []
+        self.options: dict[str, Any] | None = None
+
+    def send(self, entry: Sent[T], data: bytes) -> None:
+        with self.lock:
+            self.seq += 1
+            self.sent[self.seq] = entry
+            self.socket.send(data)
+
+    def change(self, options: dict[str, Any], drain: bool) -> None:
+        """New options (a frame's camera); with ``drain``, once every frame sent before is answered, so none
+        is answered with them. The service acknowledges them with a header the reading loop passes over."""
+        slots = self.in_flight if drain else 0
+        for _ in range(slots):
+            self.window.acquire()
+        self.socket.send(json.dumps(options))
+        self.options = options
+        for _ in range(slots):
+            self.window.release()
+
+
 def answers(
     socket: ClientConnection,
     items: Iterable[T],
     encode: Callable[[T], bytes],
     live: bool,
     in_flight: int = 2,
+    options_of: Callable[[T], dict[str, Any] | None] | None = None,
 ) -> Iterator[Answer[T]]:
-    """Send every item's frame through the stream and yield the answers in order.
+    """Send every item's frame through the stream and yield the answers in the source's order.
 
     A file source (``live`` False) keeps at most ``in_flight`` frames unanswered, so every frame is
-    answered; two is what the service holds (one worked on, one waiting). A live source sends each
-    frame as it comes and the service answers the freshest, so frames it skipped get no answer: an
-    answer stands for every frame sent before it. A sender thread feeds a live stream while answers
-    are read here; stopping the generator (Ctrl-C) closes the stream.
+    answered; two is what the service holds (one worked on, one waiting). The caller opens the stream
+    with the first item's options (``options_of``: its camera); a later item's that differ are sent
+    before it, once the frames before it are answered. A frame refused with 503 is sent again
+    (``RETRIES``). A live source sends each frame as it comes and the service answers the freshest, so
+    frames it skipped get no answer: an answer stands for every frame sent before it. A sender thread
+    feeds the stream while answers are read here; stopping the generator (Ctrl-C) closes the stream.
     """
-    sent: dict[int, T] = {}  # the frames not answered yet, by number: each is dropped once answered
-    count, ended = [0], threading.Event()  # how many were sent; set once the source has no more
-    done = threading.Event()
-    window = threading.Semaphore(in_flight)
-    failure: list[BaseException] = []
+    talk: Conversation[T] = Conversation(socket, in_flight)
 
     def send_all() -> None:
         try:
-            for seq, item in enumerate(items, 1):
-                if done.is_set():
+            for order, item in enumerate(items):
+                if talk.done.is_set():
                     return
+                wanted = options_of(item) if options_of is not None else None
+                if order == 0:
+                    talk.options = wanted  # the caller opened the stream with the first item's options
+                elif wanted is not None and wanted != talk.options:
+                    talk.change(wanted, drain=not live)
                 if not live:
-                    window.acquire()
-                data = encode(item)
-                sent[seq] = item
-                socket.send(data)
-                count[0] = seq
+                    talk.window.acquire()
+                talk.send(Sent(order, item), encode(item))
         except ConnectionClosed:
             return
         except BaseException as e:  # a source that fails mid-way: reported where answers are read
-            failure.append(e)
+            talk.failure.append(e)
         finally:
-            ended.set()
+            talk.ended.set()
 
     sender = threading.Thread(target=send_all, daemon=True)
     sender.start()
-    last = 0
     try:
-        while not (ended.is_set() and last >= count[0]):
-            try:  # only the wait for a header is short: an answer's payloads may take long on a slow link
-                text = socket.recv(timeout=0.5)
-            except TimeoutError:
-                continue
-            header = json.loads(text)
-            bodies = [socket.recv(timeout=PAYLOAD_TIMEOUT_S) for _ in header.get("payloads", [])]
-            seq = header.get("seq")
-            if seq is None:
-                raise StreamRefused(f"the service refused the stream's options: {header.get('detail')}")
-            item = sent.pop(seq)
-            for earlier in range(last + 1, seq):  # skipped by the service: they get no answer
-                sent.pop(earlier, None)
-            last = seq
-            window.release()
-            kinds = {entry["kind"]: body for entry, body in zip(header.get("payloads", []), bodies, strict=True)}
-            yield Answer(item, header, kinds)
-        if failure:
-            raise failure[0]
+        yield from _read_answers(talk, encode, live)
+        if talk.failure:
+            raise talk.failure[0]
     finally:
-        done.set()
-        window.release()
+        talk.done.set()
+        talk.window.release()
         sender.join(timeout=5)
+
+
+def _read_answers(talk: Conversation[T], encode: Callable[[T], bytes], live: bool) -> Iterator[Answer[T]]:
+    """The reading half of ``answers``: each answer, in the source's order, 503s sent again first."""
+    ready: dict[int, Answer[T]] = {}
+    next_order, last = 0, 0
+    while not (talk.ended.is_set() and not talk.sent and not ready):
+        try:  # only the wait for a header is short: an answer's payloads may take long on a slow link
+            text = talk.socket.recv(timeout=0.5)
+        except TimeoutError:
+            continue
+        header = json.loads(text)
+        bodies = [talk.socket.recv(timeout=PAYLOAD_TIMEOUT_S) for _ in header.get("payloads", [])]
+        if header.get("type") == "options":
+            continue  # the acknowledgement of options sent between frames
+        seq = header.get("seq")
+        if seq is None:
+            raise StreamRefused(f"the service refused the stream's options: {header.get('detail')}")
+        with talk.lock:
+            entry = talk.sent.pop(seq)
+            for earlier in range(last + 1, seq):  # skipped by the service: they get no answer
+                talk.sent.pop(earlier, None)
+        last = seq
+        if not live and header.get("status") == 503 and entry.tries <= RETRIES:
+            # It keeps its place in the window: sent again, not released.
+            time.sleep(min(2.0 ** (entry.tries - 1), RETRY_WAIT_MAX_S))
+            talk.send(Sent(entry.order, entry.item, entry.tries + 1), encode(entry.item))
+            continue
+        talk.window.release()
+        kinds = {e["kind"]: body for e, body in zip(header.get("payloads", []), bodies, strict=True)}
+        answer = Answer(entry.item, header, kinds)
+        if live:
+            yield answer
+            continue
+        ready[entry.order] = answer
+        while next_order in ready:
+            yield ready.pop(next_order)
+            next_order += 1

@@ -2,7 +2,7 @@
 
 The client side of the stream for robots: frames go out through one WebSocket (``app.stream_client``),
 and each answer's depth and point cloud are written to a folder (16-bit depth PNGs, PLYs) and/or a
-ROS 2 bag (``recordings.ros2_bag``). Answers come as raw millimetres and raw points, the stream's
+ROS 2 bag (``recordings.ros2_bag``). Answers come as raw float32 metres and raw points, the stream's
 cheapest encodings, and are written with the service's own encoders, so a PNG here is byte for byte
 what ``/depth`` returns. It lives in the command line because it joins the two torch-free halves the
 serving install may hold: the service's client and the recordings' readers.
@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import itertools
 import queue
+import sys
 import tempfile
 import threading
 import time
@@ -23,6 +24,11 @@ import numpy as np
 import typer
 
 from contract.errors import UserError
+
+CAMERA_HELP = (
+    "{}, pixels: a recording's in its own pixels, as fit takes it (its camera is overridden, then scaled to "
+    "each photo sent); a camera's, video's or photos' in their frames' pixels"
+)
 
 
 @dataclass
@@ -73,17 +79,85 @@ class Outputs:
             bag.frames += 1
 
 
-def stream_options(first: Any, given: dict[str, Any]) -> dict[str, Any]:
-    """The stream's query: both outputs, raw, and the recording's own camera unless the user gave one."""
+#: The service's default limit on a stream frame's pixels (RGB2CLOUD_STREAM_MAX_PIXELS): larger photos are
+#: resized to fit before they are sent, their camera with them.
+STREAM_MAX_PIXELS = 3840 * 2160
+
+
+@dataclass(frozen=True)
+class Sending:
+    """A frame as it goes out: the photo at the size sent, and its camera as the stream's options in that
+    photo's pixels (None: the service's own camera, from the photo's EXIF or the model's)."""
+
+    frame: Any  # recordings.sources.SourceFrame
+    camera: dict[str, float] | None
+
+
+def stream_options(first: Sending, given: dict[str, Any]) -> dict[str, Any]:
+    """The stream's query: both outputs, raw float depth and raw points, and the first frame's camera (each
+    later frame's is sent as it changes)."""
     options = {"output": "both", "depth_encoding": "raw32", "cloud_encoding": "raw"}
-    camera = first.camera
-    if camera is not None and given.get("fx") is None and given.get("fy") is None:
-        options |= {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy}
-    return options | {k: v for k, v in given.items() if v is not None}
+    return options | {k: v for k, v in given.items() if v is not None} | (first.camera or {})
 
 
-def run_stream(source: Any, url: str, outputs: Outputs, given: dict[str, Any], overwrite: bool) -> tuple[int, int]:
-    """Every frame through one stream into ``outputs``; (frames written, frames refused)."""
+class Fitting:
+    """Each frame as it is sent: resized to the stream's pixel limit if it is over (said once), with its
+    camera in the pixels of the photo sent. A recording's camera comes in each frame (the user's overrides
+    already applied in the recording's pixels by its reader); a camera's, video's or photos' is what the
+    user gave in their frames' pixels, only the values given, so the service fills in the rest as ``/depth``
+    does."""
+
+    def __init__(self, max_pixels: int, given: dict[str, float], say: Any):
+        self.max_pixels, self.given, self.say, self.said = max_pixels, given, say, False
+
+    def __call__(self, frame: Any) -> Sending:
+        import dataclasses
+        import io
+
+        from PIL import Image
+
+        from contract.geometry import resized_coordinate
+
+        with Image.open(io.BytesIO(frame.data)) as im:
+            width, height = im.size
+            sx = sy = 1.0
+            if width * height > self.max_pixels:
+                scale = (self.max_pixels / (width * height)) ** 0.5
+                size = max(1, int(width * scale)), max(1, int(height * scale))
+                if not self.said:
+                    self.say(
+                        f"photos of {width}x{height} are over the stream's {self.max_pixels:,} pixels: sent at "
+                        f"{size[0]}x{size[1]}, their camera scaled to match"
+                    )
+                    self.said = True
+                out = io.BytesIO()
+                im.convert("RGB").resize(size, Image.Resampling.LANCZOS).save(out, format="JPEG", quality=90)
+                frame = dataclasses.replace(frame, data=out.getvalue())
+                sx, sy = size[0] / width, size[1] / height
+                width, height = size
+        if frame.camera is not None:
+            k = frame.camera.resized(width, height)
+            return Sending(dataclasses.replace(frame, camera=k), {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy})
+        scaled = {
+            "fx": lambda v: v * sx,
+            "fy": lambda v: v * sy,
+            "cx": lambda v: resized_coordinate(v, sx),
+            "cy": lambda v: resized_coordinate(v, sy),
+        }
+        return Sending(frame, {key: scaled[key](v) for key, v in self.given.items()} or None)
+
+
+def run_stream(
+    source: Any,
+    url: str,
+    outputs: Outputs,
+    given: dict[str, Any],
+    given_camera: dict[str, float],
+    overwrite: bool,
+    max_pixels: int,
+) -> tuple[int, int]:
+    """Every frame through one stream into ``outputs``; (frames written, frames refused). ``given_camera``
+    is the user's camera for a source whose frames carry none, in its frames' pixels."""
     from tqdm import tqdm
     from websockets.exceptions import InvalidHandshake
 
@@ -92,10 +166,15 @@ def run_stream(source: Any, url: str, outputs: Outputs, given: dict[str, Any], o
     frames = source.frames
     if not source.live and outputs.out is not None and outputs.bag is None and not overwrite:
         frames = (f for f in frames if not all(p.exists() for p in outputs.paths(f.name)))
-    first = next(frames, None)
+
+    def say(line: str) -> None:
+        tqdm.write(line, file=sys.stderr)
+
+    sending = map(Fitting(max_pixels, given_camera, say), frames)
+    first = next(sending, None)
     if first is None:
         return 0, 0
-    frames = itertools.chain([first], frames)
+    sending = itertools.chain([first], sending)
     refused = 0
     bar = tqdm(desc="stream", unit="frame", mininterval=1.0)
     started = time.perf_counter()
@@ -106,11 +185,11 @@ def run_stream(source: Any, url: str, outputs: Outputs, given: dict[str, Any], o
     writer = Writer(outputs)
     try:
         with socket:
-            for answer in answers(socket, frames, lambda f: f.data, source.live):
+            for answer in answers(socket, sending, lambda s: s.frame.data, source.live, options_of=lambda s: s.camera):
                 bar.update(1)
                 if answer.error is not None:
                     refused += 1
-                    tqdm.write(f"{answer.item.name}: {answer.error}")
+                    say(f"{answer.item.frame.name}: {answer.error}")
                     continue
                 writer.put(answer)
                 rate = writer.written / max(1e-9, time.perf_counter() - started)
@@ -137,7 +216,7 @@ class Writer:
         while (answer := self._queue.get()) is not None:
             if self._failure is None:
                 try:
-                    self.outputs.write(answer.item, answer.header, answer.payloads)
+                    self.outputs.write(answer.item.frame, answer.header, answer.payloads)
                     self.written += 1
                 except BaseException as e:  # a full disk: raised where answers are read
                     self._failure = e
@@ -170,7 +249,13 @@ def stream(
     ] = "/rgb2cloud",
     url: Annotated[str | None, typer.Option(help="service URL (default: RGB2CLOUD_HOST and _PORT)")] = None,
     model: Annotated[str | None, typer.Option(help="NAME or NAME:VERSION (default: the service's)")] = None,
-    fx: Annotated[float | None, typer.Option(help="focal length, pixels (the recording's, else the model's)")] = None,
+    fx: Annotated[float | None, typer.Option(help=CAMERA_HELP.format("focal length x"))] = None,
+    fy: Annotated[float | None, typer.Option(help=CAMERA_HELP.format("focal length y"))] = None,
+    cx: Annotated[float | None, typer.Option(help=CAMERA_HELP.format("principal point x"))] = None,
+    cy: Annotated[float | None, typer.Option(help=CAMERA_HELP.format("principal point y"))] = None,
+    max_pixels: Annotated[
+        int, typer.Option(min=1, help="photos over this many pixels are resized to fit (the service's stream limit)")
+    ] = STREAM_MAX_PIXELS,
     stride: Annotated[int, typer.Option(min=1, max=64, help="point clouds: every stride-th row and column")] = 1,
     max_depth: Annotated[float, typer.Option(help="point clouds: drop points farther (m)")] = 100.0,
     smooth: Annotated[str, typer.Option(help="off | temporal (docs/api.md#streams)")] = "off",
@@ -185,17 +270,23 @@ def stream(
 
     from app.client import service_url
     from app.stream_client import StreamRefused
+    from recordings.folders import CameraFile
     from recordings.formats import ReadOptions
     from recordings.ros2_bag import DepthBag, Topics
     from recordings.sources import stream_source
 
     if out is None and bag is None:
         raise UserError("nothing to write: give --out DIR and/or --bag DIR")
-    given = {"model": model, "fx": fx, "stride": stride, "max_depth": max_depth, "smooth": smooth}
+    overrides = CameraFile(fx, fy, cx, cy)
+    given = {"model": model, "stride": stride, "max_depth": max_depth, "smooth": smooth}
     with tempfile.TemporaryDirectory(prefix="rgb2cloud-stream-") as scratch:
         gap = None if max_gap_ms is None else max_gap_ms / 1000
-        options = ReadOptions(color_topic=color_topic, depth_topic=depth_topic, max_gap_s=gap, max_frames=None)
+        topics = {"color_topic": color_topic, "depth_topic": depth_topic}
+        options = ReadOptions(overrides, **topics, max_gap_s=gap, max_frames=None)
         found = stream_source(source, format, options, Path(scratch))
+        # A camera's, video's or photos' frames carry no camera: the user's goes with each, in its own pixels.
+        camera = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
+        given_camera = {} if found.recorded_camera else {k: v for k, v in camera.items() if v is not None}
         if with_sensor_depth and not found.registered:
             raise UserError(
                 f"{source}: --with-sensor-depth needs depth registered to colour (bags, Kinect and phone "
@@ -207,7 +298,9 @@ def stream(
         outputs = Outputs(out, pointcloud, writer, with_colour, with_sensor_depth)
         typer.echo(f"streaming {source} ({found.description}) to {url or service_url()}", err=True)
         try:
-            written, refused = run_stream(found, url or service_url(), outputs, given, overwrite)
+            written, refused = run_stream(
+                found, url or service_url(), outputs, given, given_camera, overwrite, max_pixels
+            )
         except (StreamRefused, ConnectionClosed) as e:
             raise UserError(f"the stream ended: {e}") from None
         except KeyboardInterrupt:

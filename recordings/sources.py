@@ -58,6 +58,9 @@ class Source:
     #: Whether the frames' sensor depth is registered to the photo (bags, Kinect and phone recordings are
     #: read so; folders, TUM and 7-Scenes hold their depth as the sensor took it).
     registered: bool = False
+    #: Whether each frame carries the camera a recording gives it (``SourceFrame.camera``), which the
+    #: reader applies ``ReadOptions.camera`` to; a camera's, video's or photos' frames carry none.
+    recorded_camera: bool = False
 
 
 def wall_ns() -> int:
@@ -143,7 +146,7 @@ def recording(root: Path, format: str | None, options: ReadOptions, scratch: Pat
         for p in found.pairs
     )
     description = f"{found.format}, {len(found.pairs)} frames"
-    return Source(frames, False, found.frame_id or DEFAULT_FRAME_ID, description, found.format in WRITTEN)
+    return Source(frames, False, found.frame_id or DEFAULT_FRAME_ID, description, found.format in WRITTEN, True)
 
 
 def is_depth_recording(path: Path) -> bool:

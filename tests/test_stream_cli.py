@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -292,3 +293,126 @@ def test_a_webcam_through_v4l2loopback(service, tmp_path):
         assert len(read_bag(tmp_path / "bag")["/rgb2cloud/aligned_depth_to_color/image_raw"]) > 0
     finally:
         feeder.terminate()
+
+
+def camera_infos(bag: Path) -> list:
+    return [m for _, _, m in read_bag(bag)["/rgb2cloud/aligned_depth_to_color/camera_info"]]
+
+
+def first_depth(bag: Path) -> np.ndarray:
+    image = read_bag(bag)["/rgb2cloud/aligned_depth_to_color/image_raw"][0][2]
+    return np.frombuffer(image.data, dtype="<f4").reshape(image.height, image.width)
+
+
+def test_camera_overrides_are_in_the_recordings_own_pixels(service, tmp_path):
+    # A 1280x720 bag whose CameraInfo says fx = fy = 1050, centre (639.5, 359.5). The reader writes its photos
+    # smaller before they are streamed; whatever size is sent, K is the recording's camera scaled to it.
+    frames = []
+    for p in sorted((MOSD / "color").glob("learn*.jpg"))[:2]:
+        rgb = Image.open(p).convert("RGB").resize((1280, 720), Image.Resampling.BILINEAR)
+        mm = Image.open(MOSD / "depth" / f"{p.stem}.png").resize((1280, 720), Image.Resampling.NEAREST)
+        frames.append((np.asarray(rgb), np.asarray(mm)))
+    from contract.geometry import Intrinsics
+
+    source = write_aligned_bag(tmp_path / "hd", "mcap", frames, info=Intrinsics(1050, 1050, 639.5, 359.5, 1280, 720))
+    runs = {"recorded": [], "said again": ["--fx", "1050"], "other": ["--fx", "700", "--cx", "600"]}
+    for name, args in runs.items():
+        stream_cli(service, str(source), "--bag", str(tmp_path / name), *args)
+    for name, fx, cx in (("recorded", 1050, 639.5), ("said again", 1050, 639.5), ("other", 700, 600)):
+        for info in camera_infos(tmp_path / name):
+            w, h = info.width, info.height
+            assert w < 1280 and w * 720 == pytest.approx(h * 1280, rel=0.01)  # sent smaller, the same shape
+            # By hand: a focal length scales with the width, a pixel centre c goes to (c + 0.5) * w / 1280 - 0.5.
+            assert info.k[0] / w == pytest.approx(fx / 1280, rel=1e-6), name
+            assert info.k[4] / h == pytest.approx(1050 / 720, rel=1e-6), name
+            assert info.k[2] == pytest.approx((cx + 0.5) * w / 1280 - 0.5, abs=1e-6), name
+            assert info.k[5] == pytest.approx(360 * h / 720 - 0.5, abs=1e-6), name
+            assert info.p[0] == info.k[0] and info.p[2] == info.k[2]
+    recorded, said_again = first_depth(tmp_path / "recorded"), first_depth(tmp_path / "said again")
+    np.testing.assert_array_equal(recorded, said_again)  # the same camera said again: the same depth
+    assert not np.allclose(recorded, first_depth(tmp_path / "other"), equal_nan=True)
+
+
+def test_each_frame_of_a_manifest_goes_with_its_own_camera(service, tmp_path):
+    # Three rows, three cameras, two sizes: each frame's CameraInfo is its own row's, at the size sent.
+    rows = [(850, (640, 480), (530, 531, 319.5, 239.5)), (851, (320, 240), (300, 310, 150, 120))]
+    rows.append((852, (640, 480), (600, 600, 330, 250)))
+    lines = ["rgb,depth,depth_scale,fx,fy,cx,cy"]
+    for n, size, (fx, fy, cx, cy) in rows:
+        rgb, depth = tmp_path / f"{n}.png", tmp_path / f"{n}.depth.png"
+        Image.open(SEVEN_SCENES / f"frame-{n:06d}.color.jpg").resize(size, Image.Resampling.BILINEAR).save(rgb)
+        Image.open(SEVEN_SCENES / f"frame-{n:06d}.depth.png").resize(size, Image.Resampling.NEAREST).save(depth)
+        lines.append(f"{rgb.name},{depth.name},1000,{fx},{fy},{cx},{cy}")
+    (tmp_path / "rows.csv").write_text("\n".join(lines) + "\n")
+    stream_cli(service, str(tmp_path / "rows.csv"), "--bag", str(tmp_path / "bag"))
+    infos = camera_infos(tmp_path / "bag")
+    assert len(infos) == 3
+    for info, (_, size, (fx, fy, cx, cy)) in zip(infos, rows, strict=True):
+        assert (info.width, info.height) == size  # under the stream's limit: sent as they are
+        assert list(info.k) == pytest.approx([fx, 0, cx, 0, fy, cy, 0, 0, 1])
+
+
+def test_a_12_megapixel_photo_is_sent_resized_with_its_camera(service, tmp_path):
+    folder = tmp_path / "phone"
+    folder.mkdir()
+    Image.open(KITCHEN[0]).resize((4032, 3024), Image.Resampling.BILINEAR).save(folder / "big.jpg", quality=90)
+    result = stream_cli(
+        service,
+        str(folder),
+        "--out",
+        str(tmp_path / "out"),
+        "--bag",
+        str(tmp_path / "bag"),
+        "--fx",
+        "3000",
+        "--stride",
+        "16",
+    )
+    assert result.stderr.count("over the stream's 8,294,400 pixels") == 1, result.stderr
+    with Image.open(tmp_path / "out" / "big.depth.png") as im:
+        w, h = im.size
+    # By hand: sqrt(8294400 / (4032 * 3024)) = 0.8248, so 3325 x 2494, under the limit with its shape kept.
+    assert (w, h) == (3325, 2494) and w * h <= 3840 * 2160
+    (info,) = camera_infos(tmp_path / "bag")
+    assert (info.width, info.height) == (w, h)
+    assert info.k[0] == pytest.approx(3000 * w / 4032, rel=1e-6)  # --fx is in the photo's own pixels
+    assert info.k[4] == pytest.approx(3000 * w / 4032, rel=1e-6)  # fy, not given, is fx, as /depth takes it
+
+
+def test_a_busy_service_refuses_frames_with_503_and_the_stream_sends_them_again(tmp_path):
+    # One request at a time and no queue: while a POST runs, a stream frame gets 503. Another client's large
+    # photos keep the worker busy until the service has refused a stream frame, then stop, as a shared
+    # service's other clients come and go.
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for i, photo in enumerate(KITCHEN[:12]):
+        (folder / f"{i:02d}.jpg").write_bytes(photo.read_bytes())
+    env = {"bundled_registry": BUNDLED_REGISTRY, "model": "rgb2cloud-7scenes", "engine": "onnxruntime"}
+
+    def refused(url: str) -> float:
+        lines = httpx.get(f"{url}/metrics").text.splitlines()
+        counts = [line for line in lines if line.startswith('rgb2cloud_stream_frames_total{outcome="refused"')]
+        return float(counts[0].split()[-1]) if counts else 0.0
+
+    with running_service(**env, workers="1", max_queue="0") as up:
+        stop = threading.Event()
+
+        large = io.BytesIO()
+        Image.open(KITCHEN[20]).resize((4000, 3000)).save(large, format="JPEG", quality=90)
+
+        def hammer() -> None:
+            with httpx.Client(timeout=60) as client:
+                while not stop.is_set() and not refused(up.url):
+                    client.post(f"{up.url}/depth", files={"image": large.getvalue()})
+
+        other_client = threading.Thread(target=hammer)
+        other_client.start()
+        try:
+            result = stream_cli(up.url, str(folder), "--out", str(tmp_path / "out"))
+        finally:
+            stop.set()
+            other_client.join()
+        times_refused = refused(up.url)
+    assert "12 frames written" in result.stdout and "refused" not in result.stdout
+    assert len(list((tmp_path / "out").glob("*.depth.png"))) == 12
+    assert times_refused >= 1  # 503s happened, and every frame still came back
