@@ -366,6 +366,7 @@ def test_the_plan_spends_what_the_budget_leaves_and_refuses_a_budget_too_small()
         val_every=56,
         checkpoint_every=22,
         deadline_s=490,
+        validation_s=10,
     )
     # An int8 graph too: its calibration's 20 frames at 4 predictions each, and 20 s more: 60 s, 30 steps fewer.
     int8 = plan_training(budget_s=600, spent_s=30, step_s=2.0, work=dataclasses.replace(work, int8=True))

@@ -74,24 +74,33 @@ def _check_resumable(saved: dict, config: RunConfig) -> None:
             )
 
 
+#: ``revise(step, busy_s)`` after each step, with the seconds the loop has run so far less its validations
+#: (batch loading, logging and checkpoints included: every step pays for them): the run's config with its
+#: steps and schedule re-planned, or None.
+Revise = Callable[[int, float], RunConfig | None]
+
+
 def train(
     config: RunConfig,
     resume: bool = False,
     report: Callable[[int, int], None] | None = None,
     deadline: float | None = None,
+    revise: Revise | None = None,
 ) -> RunSummary:
     """Run (or continue) training; returns the run summary that is also written to disk.
 
     ``report(step, steps)`` after each step replaces the run's own progress bar (``fit``
     draws one bar for its whole command). At ``deadline`` (``time.monotonic()``), a
     single-process run saves its checkpoint and stops early: a wall-clock budget holds
-    even when the machine runs slower than it was measured.
+    even when the machine runs slower than it was measured. ``revise`` lets the caller
+    re-plan the steps as they run (``fit``: a budget kept when steps run faster or slower
+    than they were measured).
     """
     ddp = setup_distributed("cuda" if config.train.device != "cpu" and torch.cuda.is_available() else "cpu")
-    if deadline is not None and ddp.world_size > 1:
-        raise ValueError("a deadline stops one process; under torchrun the ranks would part ways")
+    if (deadline is not None or revise is not None) and ddp.world_size > 1:
+        raise ValueError("a deadline or a re-plan changes one process; under torchrun the ranks would part ways")
     try:
-        return _train(config, resume, ddp, report, deadline)
+        return _train(config, resume, ddp, report, deadline, revise)
     finally:
         if ddp.world_size > 1:
             leave_process_group()
@@ -301,6 +310,7 @@ def _train(
     ddp: Distributed,
     report: Callable[[int, int], None] | None,
     deadline: float | None,
+    revise: Revise | None = None,
 ) -> RunSummary:
     run = start_run(config, resume, ddp)
     loader = training_loader(config, ddp, run.step, pin_memory=run.device.type == "cuda")
@@ -311,7 +321,6 @@ def _train(
     run.discriminator.train()
     batches = iter(loader)
     progress = tqdm(
-        range(run.step, config.train.steps),
         initial=run.step,
         total=config.train.steps,
         disable=not ddp.is_main or report is not None,
@@ -319,14 +328,19 @@ def _train(
         unit="step",
         dynamic_ncols=True,
     )
-    window_seconds, window_images, logged = 0.0, 0, {}
-    for step in progress:
-        losses, seconds, images = train_step(run, step, next(batches), gan_loss)
+    window_seconds, window_images, logged, validating = 0.0, 0, {}, 0.0
+    began = time.perf_counter()
+    while run.step < config.train.steps:
+        losses, seconds, images = train_step(run, run.step, next(batches), gan_loss)
         run.train_seconds += seconds
         window_seconds += seconds
         window_images += images
-        run.step = step + 1
-        last = run.step == config.train.steps or (deadline is not None and time.monotonic() >= deadline)
+        run.step += 1
+        progress.update(1)
+        if revise is not None and (revised := revise(run.step, time.perf_counter() - began - validating)) is not None:
+            config = run.config = revised
+            progress.total = config.train.steps
+        last = run.step >= config.train.steps or (deadline is not None and time.monotonic() >= deadline)
         if report is not None:
             report(run.step, config.train.steps)
         if ddp.is_main and (run.step % config.train.log_every == 0 or last):
@@ -338,13 +352,16 @@ def _train(
         at_validation = run.step % config.train.val_every == 0
         at_checkpoint = run.step % config.train.checkpoint_every == 0
         if ddp.is_main and (at_validation or last):
+            tick = time.perf_counter()
             validate(run)
+            validating += time.perf_counter() - tick
         if ddp.is_main and (at_checkpoint or last):
             run.save("last.pt")
         if ddp.world_size > 1 and (at_validation or at_checkpoint):
             dist.barrier()  # keep ranks together while rank 0 validates or saves
         if last:
             break
+    progress.close()
     return finish(run, logged)
 
 

@@ -5,7 +5,9 @@ measured on the run's own data before anything is planned: a few real steps, and
 few predictions, on throwaway networks. The plan leaves room for validation and for
 what follows training (scoring the held-out frames, export and its parity check),
 and decays the learning rate to zero over the second half of the steps, as pix2pixHD
-does over its last epochs.
+does over its last epochs. Steps measured before training can be far from what they cost
+once it runs (on CUDA the first steps are slow), so ``Pacer`` re-plans from the rate the
+steps really run at, and the budget is kept on any device.
 """
 
 from __future__ import annotations
@@ -13,12 +15,12 @@ from __future__ import annotations
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
 from contract.errors import UserError
-from trainer.config import RunConfig
+from trainer.config import OptimConfig, RunConfig
 from trainer.data.sources import open_source
 from trainer.data.transforms import resize_frame
 from trainer.devices import Distributed, pick_device
@@ -65,6 +67,8 @@ class Plan:
     deadline_s: float
     #: The steps were given (``fit --steps``), not fitted to the budget: training runs them all.
     fixed: bool = False
+    #: Seconds set aside for scoring the selection frames, all ``VALIDATIONS`` times and once before the first step.
+    validation_s: float = 0.0
 
     def line(self) -> str:
         if self.fixed:
@@ -169,4 +173,103 @@ def plan_training(budget_s: float, spent_s: float, step_s: float, work: Workload
         checkpoint_every=min(per_checkpoint, steps),
         deadline_s=budget_s - work.tail_s(),
         fixed=fixed,
+        validation_s=work.validation_s(),
     )
+
+
+#: How often a fit compares its steps' real rate with its plan: after each share of its planned steps or of its
+#: training time, whichever comes first, over at least ``REVISE_MIN_STEPS`` steps. It re-plans when the steps
+#: left would end more than ``REVISE_TOLERANCE`` of the training time early or late; in the last
+#: ``SETTLED_SHARE`` of the steps it looks every ``REVISE_MIN_STEPS`` steps and re-plans only when they would
+#: end more than a step late, so the deadline never cuts the decay short.
+REVISE_SHARE, REVISE_MIN_STEPS, REVISE_TOLERANCE, SETTLED_SHARE = 0.05, 5, 0.05, 0.1
+
+
+def continued_decay(optim: OptimConfig, step: int, steps: int) -> OptimConfig:
+    """The learning-rate schedule of a run re-planned at ``step`` to end at ``steps``: zero at the new end, over
+    its last ``DECAY_SHARE`` as a plan makes it where the decay has not begun, and never a jump: a decay under
+    way goes on from the rate it has reached (from step 0 at a lower peak, where it must be that long)."""
+    fraction = optim.lr_at(step) / optim.lr
+    nominal = round(steps * (1 - DECAY_SHARE))
+    under_way = fraction < 1.0 or step > nominal
+    start = round(steps - (steps - step) / max(fraction, 1e-9)) if under_way else nominal
+    if start >= 0:
+        return optim.model_copy(update={"decay_start": start, "decay_steps": steps - start})
+    peak = optim.lr * fraction * steps / (steps - step)  # lr_at(step) unchanged, decaying from step 0
+    return optim.model_copy(update={"lr": peak, "decay_start": 0, "decay_steps": steps})
+
+
+class Pacer:
+    """Re-plans a fit's steps from the rate they really run at, so training fills the time the plan gave it.
+
+    Called after each step (``trainer.train.Revise``) with the seconds the steps took; every so often it
+    measures the rate since its last look, and where the steps left at that rate would end the training
+    more than ``REVISE_TOLERANCE`` early or late, it sets a new step count (the selection frames' remaining
+    validations set aside), its learning-rate decay, validations and checkpoints, tells ``on_revise`` (which
+    says so and saves the plan for ``--resume``), and returns the run's new config.
+    """
+
+    def __init__(
+        self,
+        plan: Plan,
+        config: RunConfig,
+        deadline: float,
+        on_revise: Callable[[Plan, RunConfig, str], None],
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.plan, self.config, self.deadline, self.on_revise, self.clock = plan, config, deadline, on_revise, clock
+        self.validation_s = plan.validation_s / (VALIDATIONS + 1)
+        self.every_s = REVISE_SHARE * plan.train_s
+        self.mark: tuple[float, int, float] | None = None  # (clock, step, busy seconds) at the last look
+
+    def __call__(self, step: int, busy_s: float) -> RunConfig | None:
+        now = self.clock()
+        if self.mark is None:  # the first step (warm-up, allocations) is not a rate
+            self.mark = (now, step, busy_s)
+            return None
+        then, from_step, from_busy = self.mark
+        steps = self.config.train.steps
+        counted = step - from_step
+        settled = step >= steps * (1 - SETTLED_SHARE)
+        due = settled or now - then >= self.every_s or counted >= REVISE_SHARE * steps
+        if not due or counted < REVISE_MIN_STEPS:
+            return None
+        self.mark = (now, step, busy_s)
+        rate = (busy_s - from_busy) / (step - from_step)
+        every = self.config.train.val_every
+        validations_left = steps // every - step // every + (1 if steps % every else 0)
+        left_s = self.deadline - now - validations_left * self.validation_s
+        off_s = (steps - step) * rate - left_s  # > 0: the deadline would cut the steps off before their decay ends
+        if settled:  # only a late end is worth a change now: to end a step early, not one late
+            if off_s <= rate:
+                return None
+            left_s -= rate
+        elif abs(off_s) <= REVISE_TOLERANCE * self.plan.train_s:
+            return None
+        new_steps = max(step + 1, step + int(left_s / rate))
+        optim = continued_decay(self.config.optim, step, new_steps)
+        decay_start = optim.decay_start or 0
+        checkpoint_every = max(1, min(int(CHECKPOINT_SECONDS / rate), new_steps // 10))
+        val_every = max(1, new_steps // VALIDATIONS)
+        self.config = self.config.model_copy(
+            update={
+                "train": self.config.train.model_copy(
+                    update={"steps": new_steps, "val_every": val_every, "checkpoint_every": checkpoint_every}
+                ),
+                "optim": optim,
+            }
+        )
+        line = (
+            f"re-planned at step {step}: {steps} -> {new_steps} steps, as they run at {rate:.3f} s, not "
+            f"{self.plan.step_s:.3f} s; learning rate decaying to zero from step {decay_start}"
+        )
+        self.plan = replace(
+            self.plan,
+            step_s=rate,
+            steps=new_steps,
+            decay_start=decay_start,
+            val_every=val_every,
+            checkpoint_every=checkpoint_every,
+        )
+        self.on_revise(self.plan, self.config, line)
+        return self.config

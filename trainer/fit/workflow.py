@@ -25,7 +25,7 @@ from recordings.formats import ReadOptions, Recording, open_recording
 from recordings.frames import TRAINED_PIXELS, read_pair
 from recordings.manifest import ManifestReader, write_manifest
 from trainer.config import DataSource, RunConfig, apply_overrides, migrate_config
-from trainer.fit.budget import Workload, measure_seconds, plan_training
+from trainer.fit.budget import Pacer, Plan, Workload, measure_seconds, plan_training
 from trainer.fit.inspect import inspect_recording, readable
 from trainer.fit.progress import Progress, RunLock
 from trainer.fit.scoring import score_holdout
@@ -273,7 +273,17 @@ def _train_score_publish(options: FitOptions, state: FitState, progress: Progres
             progress.say(f"resuming at step {_checkpoint_step(last)} of {plan.steps}")
         else:
             progress.say(f"resuming before the first checkpoint: training all {plan.steps} steps from the start")
-    summary = train(config, resume=resume, report=progress.tick, deadline=deadline)
+    pacer = None
+    if deadline is not None:
+
+        def revised(new_plan: Plan, new_config: RunConfig, line: str) -> None:
+            progress.say(line)
+            state.plan, state.config = new_plan, new_config
+            state.report.append(line)
+            save_state(options.run_dir / "fit.json", state)  # --resume continues the corrected plan
+
+        pacer = Pacer(plan, config, deadline, revised)
+    summary = train(config, resume=resume, report=progress.tick, deadline=deadline, revise=pacer)
     progress.say(f"trained {summary.steps} steps in {summary.train_seconds / 60:.1f} min")
 
     progress.phase("scoring")
