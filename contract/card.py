@@ -38,6 +38,8 @@ from contract.spec import GeneratorSpec, InferenceSettings
 CARD_FILE = "card.json"
 ONNX_FILE = "generator.onnx"
 TORCHSCRIPT_FILE = "generator.torchscript.pt"
+#: The generator's weights alone (safetensors: tensors and names, no code), which training starts from.
+WEIGHTS_FILE = "generator.safetensors"
 INT8_ONNX_FILE = "generator.int8.onnx"
 #: The photo int8 and fp32 depth are compared on wherever an int8 version loads.
 INT8_SAMPLE_FILE = "int8-sample.png"

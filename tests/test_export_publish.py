@@ -16,6 +16,7 @@ from PIL import Image
 from contract.card import (
     ONNX_FILE,
     TORCHSCRIPT_FILE,
+    WEIGHTS_FILE,
     CardError,
     DataRef,
     Metrics,
@@ -128,7 +129,7 @@ def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_check
     folder = tmp_path / "registry" / "tiny" / "0.1.0"
     card = load_card(folder)
     verify_files(folder, card)
-    assert set(card.files) == {ONNX_FILE, TORCHSCRIPT_FILE}
+    assert set(card.files) == {ONNX_FILE, TORCHSCRIPT_FILE, WEIGHTS_FILE}
     assert card.generator.ngf == 8 and card.input_multiple == 8
     assert card.depth_encoding.kind == "log"
     # The camera the generator was trained at: 7-Scenes' 640x480 (fx 585, cx 320) at data.val_scale 0.2.

@@ -3,7 +3,8 @@
 On disk a checkpoint is a dict of tensors and plain values (``torch.load`` with
 ``weights_only=True`` reads nothing else); in code it is a ``Checkpoint``. A generator
 to run or start from is ``TrainedWeights``, which a published version folder gives too:
-its TorchScript weights and card stand in for a checkpoint that may no longer exist.
+its weights (``generator.safetensors``; the TorchScript file of a version older than that) and
+its card stand in for a checkpoint that may no longer exist.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from typing import Any
 
 import torch
 
-from contract.card import TORCHSCRIPT_FILE, load_card, verify_files
+from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, WEIGHTS_FILE, load_card, verify_files
 from contract.errors import UserError
 from contract.geometry import Intrinsics
 from contract.spec import GeneratorSpec, InferenceSettings
@@ -163,8 +164,9 @@ def load_graph(path: Path, inference: dict[str, Any] | None = None) -> tuple[Inf
     returned weights' config and ``inference`` carry the settings in use.
 
     A published version folder (checked against its card) gives the weights in its
-    TorchScript file and a config rebuilt from its card, so a version whose training
-    checkpoint is gone can still be run another way and published again.
+    ``generator.safetensors`` (its TorchScript file, before that) and a config rebuilt from
+    its card, so a version whose training checkpoint is gone can still be run another way and
+    published again.
     """
     weights = load_weights(path)
     weights.inference = weights.inference.updated(inference or {})
@@ -192,10 +194,12 @@ def _published_weights(version_dir: Path) -> TrainedWeights:
     """What a checkpoint holds that a published version can give back: its weights and its training."""
     card = load_card(version_dir)
     verify_files(version_dir, card)
-    state = torch.jit.load(str(version_dir / TORCHSCRIPT_FILE), map_location="cpu").state_dict()
-    # Export writes the inference graph, whose generator's keys start "generator."; a schema-1
-    # card's file is the bare generator, whose keys are the generator's own.
-    generator = {key.removeprefix("generator."): tensor for key, tensor in state.items()}
+    if WEIGHTS_FILE in card.files:
+        from safetensors.torch import load_file
+
+        generator = load_file(str(version_dir / WEIGHTS_FILE))
+    else:
+        generator = _torchscript_weights(version_dir)
     config = {**card.training.config, "generator": card.generator.model_dump()}
     return TrainedWeights(
         generator,
@@ -207,6 +211,34 @@ def _published_weights(version_dir: Path) -> TrainedWeights:
         published=f"{card.name} {card.version}",
         inference=card.inference,  # as exported, which may differ from the training config's
     )
+
+
+def _torchscript_weights(version_dir: Path) -> StateDict:
+    """The generator's weights from a version published before ``WEIGHTS_FILE`` (0.8.x, 0.9.0): its TorchScript,
+    which loads only under a torch that has every operator the writing torch recorded in it."""
+    try:
+        state = torch.jit.load(str(version_dir / TORCHSCRIPT_FILE), map_location="cpu").state_dict()
+    except RuntimeError as e:
+        writer = _writing_torch(version_dir)
+        cause = str(e).strip().splitlines()[0][:160] if str(e).strip() else type(e).__name__
+        raise UserError(
+            f"{version_dir}: its weights are TorchScript written by torch {writer}, which torch {torch.__version__} "
+            f"cannot load ({cause}); install torch=={writer.split('+')[0]} to start from it, or start from a "
+            f"version that has {WEIGHTS_FILE}"
+        ) from None
+    # Export writes the inference graph, whose generator's keys start "generator."; a schema-1
+    # card's file is the bare generator, whose keys are the generator's own.
+    return {key.removeprefix("generator."): tensor for key, tensor in state.items()}
+
+
+def _writing_torch(version_dir: Path) -> str:
+    """The torch that exported a version: its ONNX graph's producer version (or "another version")."""
+    import onnx
+
+    try:
+        return onnx.load(str(version_dir / ONNX_FILE), load_external_data=False).producer_version or "another version"
+    except Exception:  # an unreadable graph says nothing about its writer; the weights' error is the one to tell
+        return "another version"
 
 
 def start_weights(generator: torch.nn.Module, path: Path, spec: GeneratorSpec) -> StateDict:

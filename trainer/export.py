@@ -28,6 +28,7 @@ from contract.card import (
     INT8_SAMPLE_FILE,
     ONNX_FILE,
     TORCHSCRIPT_FILE,
+    WEIGHTS_FILE,
     DataRef,
     FitRecord,
     Int8Graph,
@@ -89,6 +90,15 @@ def export_onnx(graph: InferenceGraph, path: Path) -> None:
 
 def export_torchscript(graph: InferenceGraph, path: Path) -> None:
     torch.jit.script(graph.eval()).save(str(path))
+
+
+def export_weights(graph: InferenceGraph, path: Path) -> None:
+    """The generator's own state (BatchNorm unfolded), in safetensors: what ``fit --from`` and
+    ``train.start_from`` read, under any torch, where a TorchScript file names the operators of the
+    torch that wrote it."""
+    from safetensors.torch import save_file
+
+    save_file({key: tensor.contiguous() for key, tensor in graph.generator.state_dict().items()}, str(path))
 
 
 def parity_sizes(height: int, width: int, multiple: int) -> list[tuple[int, int]]:
@@ -248,8 +258,9 @@ def export_and_publish(
         folder = Path(tmp)
         export_onnx(graph, folder / ONNX_FILE)
         export_torchscript(graph, folder / TORCHSCRIPT_FILE)
+        export_weights(graph, folder / WEIGHTS_FILE)
         parity = check_parity(graph, folder, image)
-        files = {ONNX_FILE: folder / ONNX_FILE, TORCHSCRIPT_FILE: folder / TORCHSCRIPT_FILE}
+        files = {name: folder / name for name in (ONNX_FILE, TORCHSCRIPT_FILE, WEIGHTS_FILE)}
         int8 = None
         if precision == "int8":
             int8 = publish_int8(folder, config.data.train, readers, camera, image, graph.input_multiple, config.depth)
