@@ -124,7 +124,8 @@ class Conversation(Generic[T]):
         slots = self.in_flight if drain else 0
         for _ in range(slots):
             self.window.acquire()
-        self.socket.send(json.dumps(options))
+        with self.lock:  # never between another thread's frame and its seq
+            self.socket.send(json.dumps(options))
         self.options = options
         for _ in range(slots):
             self.window.release()
@@ -178,7 +179,8 @@ def answers(
             raise talk.failure[0]
     finally:
         talk.done.set()
-        talk.window.release()
+        for _ in range(in_flight):  # a sender waiting for the window, or draining it, goes on to see done
+            talk.window.release()
         sender.join(timeout=5)
 
 
@@ -200,9 +202,13 @@ def _read_answers(talk: Conversation[T], encode: Callable[[T], bytes], live: boo
             raise StreamRefused(f"the service refused the stream's options: {header.get('detail')}")
         with talk.lock:
             entry = talk.sent.pop(seq)
-            for earlier in range(last + 1, seq):  # skipped by the service: they get no answer
-                talk.sent.pop(earlier, None)
+            skipped = [talk.sent.pop(s) for s in range(last + 1, seq) if s in talk.sent]  # they get no answer
         last = seq
+        if not live:  # within the window the service skips none; if it ever did, the order must go on
+            for lost in skipped:
+                talk.window.release()
+                lost_header = {"type": "error", "seq": None, "status": "skipped", "detail": "a newer frame replaced it"}
+                ready[lost.order] = Answer(lost.item, lost_header, {})
         if not live and header.get("status") == 503 and entry.tries <= RETRIES:
             # It keeps its place in the window: sent again, not released.
             time.sleep(min(2.0 ** (entry.tries - 1), RETRY_WAIT_MAX_S))

@@ -131,20 +131,26 @@ class Fitting:
                     )
                     self.said = True
                 out = io.BytesIO()
-                im.convert("RGB").resize(size, Image.Resampling.LANCZOS).save(out, format="JPEG", quality=90)
+                # Its EXIF goes with it: the service turns it upright and reads its focal length (which
+                # scales with the stored size) as it would the photo's own.
+                resized = im.convert("RGB").resize(size, Image.Resampling.LANCZOS)
+                resized.save(out, format="JPEG", quality=90, exif=im.getexif())
                 frame = dataclasses.replace(frame, data=out.getvalue())
                 sx, sy = size[0] / width, size[1] / height
                 width, height = size
         if frame.camera is not None:
             k = frame.camera.resized(width, height)
             return Sending(dataclasses.replace(frame, camera=k), {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy})
+        given = dict(self.given)
+        if ("fx" in given) != ("fy" in given):  # as /depth takes one focal length: both, in the photo's pixels
+            given["fx"] = given["fy"] = given.get("fx", given.get("fy"))
         scaled = {
             "fx": lambda v: v * sx,
             "fy": lambda v: v * sy,
             "cx": lambda v: resized_coordinate(v, sx),
             "cy": lambda v: resized_coordinate(v, sy),
         }
-        return Sending(frame, {key: scaled[key](v) for key, v in self.given.items()} or None)
+        return Sending(frame, {key: scaled[key](v) for key, v in given.items()} or None)
 
 
 def run_stream(

@@ -7,13 +7,14 @@ of 0.14 s for 2.1 minutes and trained them in 15 s. Here a step that is slow onl
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import pytest
 from conftest import tiny_config
 
 import trainer.train as training
 from trainer.config import OptimConfig, RunConfig
-from trainer.fit.budget import VALIDATIONS, Pacer, Plan, continued_decay
+from trainer.fit.budget import VALIDATIONS, Pacer, Plan, continued_decay, resumed_deadline
 
 #: The first steps' extra seconds, and how many of them are slow.
 SLOW_S, SLOW_STEPS = 0.5, 3
@@ -62,9 +63,89 @@ def test_a_re_planned_decay_never_jumps_and_ends_at_the_new_end(step):
     optim = OptimConfig(lr=1.0, decay_start=50, decay_steps=50)
     for new_end in (400, 120):
         after = continued_decay(optim, step, new_end)
-        # No jump where it is re-planned (but for the rounding of the decay's first step to a whole one).
-        assert after.lr_at(step) == pytest.approx(optim.lr_at(step), abs=1 / (new_end - step))
+        # No jump where it is re-planned, but for the rounding of the decay's first step to a whole one: at most
+        # half a step of a decay at least ``new_end - step`` long, relative to the rate reached.
+        assert after.lr_at(step) == pytest.approx(optim.lr_at(step), rel=1 / (new_end - step))
         assert after.lr_at(new_end) == 0.0 and after.lr_at(new_end - 1) > 0
         assert all(after.lr_at(s) >= after.lr_at(s + 1) for s in range(step, new_end))  # it only falls from here
         if step < 50:  # the decay had not begun: it is the new run's last half, as a plan makes it
             assert (after.lr, after.decay_start, after.decay_steps) == (1.0, new_end // 2, new_end - new_end // 2)
+
+
+class Clock:
+    """A clock the test moves: the Pacer reads the time only through it."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def steady_run(tmp_path, steps: int = 100) -> tuple[Plan, RunConfig]:
+    """A plan of ``steps`` steps of 1 s in 100 s of training, no validations, and its run's config."""
+    config = RunConfig.model_validate(
+        tiny_config(
+            tmp_path / "run",
+            train={"steps": steps, "val_every": steps, "checkpoint_every": 10},
+            optim={"decay_start": steps // 2, "decay_steps": steps - steps // 2},
+        )
+    )
+    return Plan(100.0, 1.0, 100.0, steps, steps // 2, steps, 10, 100.0, False, 0.0), config
+
+
+def test_a_hiccup_near_the_end_costs_only_the_steps_it_took(tmp_path):
+    # Steps of 1 s on plan, then one of 5 s (a checkpoint, a collection) in the last 10%: 4 s are lost, so
+    # it re-plans at once to end within the deadline, and cuts about those 4 steps (and one more, to end a step
+    # early), not the many that a rate taken over the last few steps would.
+    plan, config = steady_run(tmp_path)
+    clock, lines = Clock(), []
+    pacer = Pacer(plan, config, 100.0, lambda p, c, line: lines.append(line), clock)
+    busy, step = 0.0, 0
+    while step < pacer.config.train.steps:
+        step += 1
+        seconds = 5.0 if step == 93 else 1.0
+        clock.now += seconds
+        busy += seconds
+        pacer(step, busy)
+    assert len(lines) == 1 and 93 <= pacer.plan.steps <= 96, lines
+    assert clock.now <= 100.0 and pacer.config.optim.lr_at(step) == 0.0
+
+
+def test_a_noisy_machine_does_not_swing_the_plan(tmp_path):
+    # Windows of 20 steps (5% of the run) alternately 10% fast and 10% slow average the plan's 1 s. The first
+    # windows may move the plan; once the rate is taken over a long window it settles at about 1 s and stays.
+    plan, config = steady_run(tmp_path, steps=400)
+    plan = replace(plan, train_s=400.0, deadline_s=400.0)
+    clock, lines = Clock(), []
+    pacer = Pacer(plan, config, 400.0, lambda p, c, line: lines.append(line), clock)
+    busy = 0.0
+    for step in range(1, 400):
+        seconds = 0.9 if (step // 20) % 2 else 1.1
+        clock.now += seconds
+        busy += seconds
+        pacer(step, busy)
+    assert len(lines) <= 3 and pacer.plan.step_s == pytest.approx(1.0, rel=0.05), lines
+
+
+def test_steps_that_fall_behind_near_the_end_end_a_step_early_not_cut_off(tmp_path):
+    # From step 90 every step takes 2 s: the 10 left would end 10 s late. It re-plans to end before the deadline.
+    plan, config = steady_run(tmp_path)
+    clock, lines = Clock(), []
+    pacer = Pacer(plan, config, 100.0, lambda p, c, line: lines.append(line), clock)
+    busy, step = 0.0, 0
+    while step < pacer.config.train.steps and clock.now < 100.0:
+        step += 1
+        seconds = 2.0 if step > 90 else 1.0
+        clock.now += seconds
+        busy += seconds
+        pacer(step, busy)
+    assert lines and step == pacer.config.train.steps and clock.now <= 100.0, (step, clock.now, lines)
+    assert pacer.config.optim.lr_at(step) == 0.0
+
+
+def test_a_resumed_fit_gets_the_time_its_steps_left_were_given(tmp_path):
+    plan, _ = steady_run(tmp_path)
+    plan = Plan(100.0, 1.0, 90.0, 100, 50, 25, 10, 100.0, False, 10.0)  # 90 s of steps, 10 of validations
+    assert resumed_deadline(plan, 0, 1000.0) == 1100.0
+    assert resumed_deadline(plan, 60, 1000.0) == pytest.approx(1040.0)  # 40% of the steps: 40% of 100 s

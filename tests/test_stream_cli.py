@@ -8,6 +8,7 @@ depth from ``POST /depth`` of the same photo, points from ``POST /pointcloud``.
 from __future__ import annotations
 
 import io
+import math
 import os
 import signal
 import subprocess
@@ -21,7 +22,7 @@ import httpx
 import numpy as np
 import pytest
 from conftest import REPO, SEVEN_SCENES
-from PIL import Image
+from PIL import ExifTags, Image
 from plyfile import PlyData
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
@@ -376,7 +377,26 @@ def test_a_12_megapixel_photo_is_sent_resized_with_its_camera(service, tmp_path)
     (info,) = camera_infos(tmp_path / "bag")
     assert (info.width, info.height) == (w, h)
     assert info.k[0] == pytest.approx(3000 * w / 4032, rel=1e-6)  # --fx is in the photo's own pixels
-    assert info.k[4] == pytest.approx(3000 * w / 4032, rel=1e-6)  # fy, not given, is fx, as /depth takes it
+    assert info.k[4] == pytest.approx(3000 * h / 3024, rel=1e-6)  # fy, not given, is fx in the photo's pixels
+
+
+def test_a_resized_phone_photo_keeps_its_exif_orientation_and_focal_length(service, tmp_path):
+    # Stored 4032x3024, turned a quarter (EXIF orientation 6: upright it is 3024x4032), a 26 mm lens in
+    # 35 mm film terms, and no --fx: the service reads the camera from the EXIF, as POST /depth does.
+    folder = tmp_path / "phone"
+    folder.mkdir()
+    exif = Image.Exif()
+    exif[ExifTags.Base.Orientation] = 6
+    exif.get_ifd(ExifTags.IFD.Exif)[ExifTags.Base.FocalLengthIn35mmFilm] = 26
+    photo = Image.open(KITCHEN[0]).resize((4032, 3024), Image.Resampling.BILINEAR)
+    photo.save(folder / "portrait.jpg", quality=90, exif=exif)
+    stream_cli(service, str(folder), "--out", str(tmp_path / "out"), "--bag", str(tmp_path / "bag"))
+    with Image.open(tmp_path / "out" / "portrait.depth.png") as im:
+        assert im.size == (2494, 3325)  # upright, at 0.8248 of each side (as above)
+    (info,) = camera_infos(tmp_path / "bag")
+    # By hand: f35 x the photo's diagonal in pixels / the film's 43.27 mm diagonal = 2497.7 px.
+    f = 26 * math.hypot(2494, 3325) / math.hypot(36, 24)
+    assert info.k[0] == pytest.approx(f, rel=1e-3) and info.k[4] == pytest.approx(f, rel=1e-3)
 
 
 def test_a_busy_service_refuses_frames_with_503_and_the_stream_sends_them_again(tmp_path):

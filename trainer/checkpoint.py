@@ -221,24 +221,26 @@ def _torchscript_weights(version_dir: Path) -> StateDict:
     except RuntimeError as e:
         writer = _writing_torch(version_dir)
         cause = str(e).strip().splitlines()[0][:160] if str(e).strip() else type(e).__name__
+        install = f"install torch=={writer.split('+')[0]}" if writer else "install the torch that exported it"
+        by = f"torch {writer}" if writer else "another torch"
         raise UserError(
-            f"{version_dir}: its weights are TorchScript written by torch {writer}, which torch {torch.__version__} "
-            f"cannot load ({cause}); install torch=={writer.split('+')[0]} to start from it, or start from a "
-            f"version that has {WEIGHTS_FILE}"
+            f"{version_dir}: its weights are TorchScript written by {by}, which torch "
+            f"{torch.__version__} cannot load ({cause}); {install} to start from it, or start from a version "
+            f"that has {WEIGHTS_FILE}"
         ) from None
     # Export writes the inference graph, whose generator's keys start "generator."; a schema-1
     # card's file is the bare generator, whose keys are the generator's own.
     return {key.removeprefix("generator."): tensor for key, tensor in state.items()}
 
 
-def _writing_torch(version_dir: Path) -> str:
-    """The torch that exported a version: its ONNX graph's producer version (or "another version")."""
+def _writing_torch(version_dir: Path) -> str | None:
+    """The torch that exported a version: its ONNX graph's producer version, if it says."""
     import onnx
 
     try:
-        return onnx.load(str(version_dir / ONNX_FILE), load_external_data=False).producer_version or "another version"
+        return onnx.load(str(version_dir / ONNX_FILE), load_external_data=False).producer_version or None
     except Exception:  # an unreadable graph says nothing about its writer; the weights' error is the one to tell
-        return "another version"
+        return None
 
 
 def start_weights(generator: torch.nn.Module, path: Path, spec: GeneratorSpec) -> StateDict:

@@ -180,9 +180,16 @@ def plan_training(budget_s: float, spent_s: float, step_s: float, work: Workload
 #: How often a fit compares its steps' real rate with its plan: after each share of its planned steps or of its
 #: training time, whichever comes first, over at least ``REVISE_MIN_STEPS`` steps. It re-plans when the steps
 #: left would end more than ``REVISE_TOLERANCE`` of the training time early or late; in the last
-#: ``SETTLED_SHARE`` of the steps it looks every ``REVISE_MIN_STEPS`` steps and re-plans only when they would
-#: end more than a step late, so the deadline never cuts the decay short.
+#: ``SETTLED_SHARE`` of the steps it looks after every one and re-plans only when they would end more than a
+#: step late, so the deadline never cuts the decay short.
 REVISE_SHARE, REVISE_MIN_STEPS, REVISE_TOLERANCE, SETTLED_SHARE = 0.05, 5, 0.05, 0.1
+
+
+def resumed_deadline(plan: Plan, step: int, now: float) -> float:
+    """When a fit resumed at ``step`` must stop: the share of the plan's training (validations included)
+    that its steps left were given, from ``now``. A deadline is the Pacer's target, so it is never the
+    whole training time again: a fit stopped halfway would otherwise train half as long again."""
+    return now + (plan.steps - step) / plan.steps * (plan.train_s + plan.validation_s)
 
 
 def continued_decay(optim: OptimConfig, step: int, steps: int) -> OptimConfig:
@@ -203,10 +210,12 @@ class Pacer:
     """Re-plans a fit's steps from the rate they really run at, so training fills the time the plan gave it.
 
     Called after each step (``trainer.train.Revise``) with the seconds the steps took; every so often it
-    measures the rate since its last look, and where the steps left at that rate would end the training
-    more than ``REVISE_TOLERANCE`` early or late, it sets a new step count (the selection frames' remaining
-    validations set aside), its learning-rate decay, validations and checkpoints, tells ``on_revise`` (which
-    says so and saves the plan for ``--resume``), and returns the run's new config.
+    measures the rate since the first step, or since its first re-plan, which leaves a slow start behind
+    (a window that only grows, so a noisy machine or a checkpoint does not swing the plan to and fro), and where the
+    steps left at that rate would end the training more than ``REVISE_TOLERANCE`` early or late, it sets a
+    new step count (the selection frames' remaining validations set aside), its learning-rate decay,
+    validations and checkpoints, tells ``on_revise`` (which says so and saves the plan for ``--resume``),
+    and returns the run's new config.
     """
 
     def __init__(
@@ -220,21 +229,23 @@ class Pacer:
         self.plan, self.config, self.deadline, self.on_revise, self.clock = plan, config, deadline, on_revise, clock
         self.validation_s = plan.validation_s / (VALIDATIONS + 1)
         self.every_s = REVISE_SHARE * plan.train_s
-        self.mark: tuple[float, int, float] | None = None  # (clock, step, busy seconds) at the last look
+        self.mark: tuple[float, int, float] | None = None  # (clock, step, busy s) at the first step or re-plan
+        self.looked: tuple[float, int] = (0.0, 0)  # (clock, step) at the last look
+        self.revised = 0
 
     def __call__(self, step: int, busy_s: float) -> RunConfig | None:
         now = self.clock()
         if self.mark is None:  # the first step (warm-up, allocations) is not a rate
-            self.mark = (now, step, busy_s)
+            self.mark, self.looked = (now, step, busy_s), (now, step)
             return None
-        then, from_step, from_busy = self.mark
+        _, from_step, from_busy = self.mark
         steps = self.config.train.steps
-        counted = step - from_step
         settled = step >= steps * (1 - SETTLED_SHARE)
-        due = settled or now - then >= self.every_s or counted >= REVISE_SHARE * steps
-        if not due or counted < REVISE_MIN_STEPS:
+        since_look_s, since_look = now - self.looked[0], step - self.looked[1]
+        due = settled or since_look_s >= self.every_s or since_look >= REVISE_SHARE * steps
+        if not due or since_look < (1 if settled else REVISE_MIN_STEPS):
             return None
-        self.mark = (now, step, busy_s)
+        self.looked = (now, step)
         rate = (busy_s - from_busy) / (step - from_step)
         every = self.config.train.val_every
         validations_left = steps // every - step // every + (1 if steps % every else 0)
@@ -271,5 +282,8 @@ class Pacer:
             val_every=val_every,
             checkpoint_every=checkpoint_every,
         )
+        if not self.revised:  # the steps before the first re-plan may be a slow start (CUDA): leave them behind
+            self.mark = (now, step, busy_s)
+        self.revised += 1
         self.on_revise(self.plan, self.config, line)
         return self.config

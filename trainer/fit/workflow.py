@@ -25,7 +25,7 @@ from recordings.formats import ReadOptions, Recording, open_recording
 from recordings.frames import TRAINED_PIXELS, read_pair
 from recordings.manifest import ManifestReader, write_manifest
 from trainer.config import DataSource, RunConfig, apply_overrides, migrate_config
-from trainer.fit.budget import Pacer, Plan, Workload, measure_seconds, plan_training
+from trainer.fit.budget import Pacer, Plan, Workload, measure_seconds, plan_training, resumed_deadline
 from trainer.fit.inspect import inspect_recording, readable
 from trainer.fit.progress import Progress, RunLock
 from trainer.fit.scoring import score_holdout
@@ -267,8 +267,8 @@ def _train_score_publish(options: FitOptions, state: FitState, progress: Progres
     last = Path(config.train.out_dir) / "checkpoints" / "last.pt"
     resume = options.resume and last.is_file()
     if options.resume:
-        if not plan.fixed:  # a fresh stretch of the budget for what is left: at most the whole training time
-            deadline = time.monotonic() + plan.train_s
+        if not plan.fixed:  # a fresh stretch of the budget for the steps left
+            deadline = resumed_deadline(plan, _checkpoint_step(last) if resume else 0, time.monotonic())
         if resume:
             progress.say(f"resuming at step {_checkpoint_step(last)} of {plan.steps}")
         else:
