@@ -170,7 +170,7 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
     ((_, reference_runner),) = built.items()
     try:
         photos = check_sizes(photo)
-        references = [card.depth_encoding.decode(reference_runner.predict_raw(p)) for p in photos]
+        references = [card.depth_encoding.decode(reference_runner.predict_raw(p, once=True)) for p in photos]
     except Exception as e:  # a graph that loads but cannot run: refused once, with why, never a 500 per request
         raise ModelLoadError(f"{files['fp32']}: its fp32 graph fails on its check photo: {e}") from e
     # A precision without a file to run: no int8 graph in the card, or an engine that runs fp32 only.
@@ -199,6 +199,7 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
             continue
         engine = _fastest(times)
         chosen[precision] = (engine, passed[engine], times[engine])
+        del passed  # the engines not chosen go now, not while the next precision's are checked
     if "fp32" not in chosen:
         raise ModelLoadError(f"{files['fp32']}: its fp32 graph cannot be served here: {unserved['fp32']}")
     if "bf16" in chosen:
@@ -283,7 +284,7 @@ def _candidates(
             reasons.append(str(e))  # under auto, one engine that cannot load a graph leaves the other
             continue
         try:
-            depths = [card.depth_encoding.decode(runner.predict_raw(p)) for p in photos]
+            depths = [card.depth_encoding.decode(runner.predict_raw(p, once=True)) for p in photos]
         except Exception as e:
             reasons.append(f"its {precision} run on {engine} fails on the sample: {e}")
             continue

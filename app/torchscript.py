@@ -23,7 +23,7 @@ class TorchScriptGenerator:
         self.module = torch.jit.load(str(path), map_location="cpu").eval()
         self.multiple = multiple
 
-    def predict_raw(self, rgb: np.ndarray) -> np.ndarray:
+    def predict_raw(self, rgb: np.ndarray, *, once: bool = False) -> np.ndarray:
         with torch.inference_mode():
             y = self.module(torch.from_numpy(to_grid(rgb, self.multiple)))
         return from_grid(y.numpy(), *rgb.shape[:2])

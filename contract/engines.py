@@ -41,8 +41,9 @@ class OpenVinoGenerator:
         self.request = self.compiled.create_infer_request()
         self.multiple = multiple
 
-    def predict_raw(self, rgb: np.ndarray) -> np.ndarray:
-        """The output copied out of the infer request's own buffer, which its next call overwrites."""
+    def predict_raw(self, rgb: np.ndarray, *, once: bool = False) -> np.ndarray:
+        """The output copied out of the infer request's own buffer, which its next call overwrites. ``once``
+        changes nothing here: a fresh infer request for a one-off run gave no memory back when measured."""
         self.request.infer({0: to_grid(rgb, self.multiple)})
         return from_grid(self.request.get_output_tensor(0).data, *rgb.shape[:2]).copy()
 

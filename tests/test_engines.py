@@ -124,11 +124,11 @@ class Wrong:
         self.multiple = real.multiple
         self.codec = load_card(VERSION).depth_encoding
 
-    def predict_raw(self, rgb: np.ndarray) -> np.ndarray:
+    def predict_raw(self, rgb: np.ndarray, *, once: bool = False) -> np.ndarray:
         if self.error:
             raise RuntimeError(self.error)
         time.sleep(self.delay_s)
-        raw = self.real.predict_raw(rgb)
+        raw = self.real.predict_raw(rgb, once=once)
         if self.factor != 1:
             raw = self.codec.encode(self.codec.decode(raw) * self.factor).astype(np.float32)
         if self.holes:
