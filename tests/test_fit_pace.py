@@ -149,3 +149,18 @@ def test_a_resumed_fit_gets_the_time_its_steps_left_were_given(tmp_path):
     plan = Plan(100.0, 1.0, 90.0, 100, 50, 25, 10, 100.0, False, 10.0)  # 90 s of steps, 10 of validations
     assert resumed_deadline(plan, 0, 1000.0) == 1100.0
     assert resumed_deadline(plan, 60, 1000.0) == pytest.approx(1040.0)  # 40% of the steps: 40% of 100 s
+
+
+def test_a_late_last_step_ends_the_run_not_re_plans_it(tmp_path):
+    # The last step takes 10 s: the run is over, its learning rate at zero; the Pacer must not re-plan one more
+    # step at a rate of zero (a fit once failed there: "optim.lr: Input should be greater than 0").
+    plan, config = steady_run(tmp_path)
+    clock, lines = Clock(), []
+    pacer = Pacer(plan, config, 100.0, lambda p, c, line: lines.append(line), clock)
+    busy = 0.0
+    for step in range(1, 101):
+        seconds = 10.0 if step == 100 else 1.0
+        clock.now += seconds
+        busy += seconds
+        assert pacer(step, busy) is None or step < 100
+    assert pacer.config.train.steps == 100 and pacer.config.optim.lr > 0, lines

@@ -240,6 +240,8 @@ class Pacer:
             return None
         _, from_step, from_busy = self.mark
         steps = self.config.train.steps
+        if step >= steps:  # the last step is done and its decay has reached zero: nothing is left to re-plan
+            return None
         settled = step >= steps * (1 - SETTLED_SHARE)
         since_look_s, since_look = now - self.looked[0], step - self.looked[1]
         due = settled or since_look_s >= self.every_s or since_look >= REVISE_SHARE * steps
