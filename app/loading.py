@@ -173,6 +173,7 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
         references = [card.depth_encoding.decode(reference_runner.predict_raw(p, once=True)) for p in photos]
     except Exception as e:  # a graph that loads but cannot run: refused once, with why, never a 500 per request
         raise ModelLoadError(f"{files['fp32']}: its fp32 graph fails on its check photo: {e}") from e
+    del reference_runner  # held by ``built`` only while fp32's candidates are checked
     # A precision without a file to run: no int8 graph in the card, or an engine that runs fp32 only.
     unserved: dict[RunPrecision, str] = {
         p: "this version has no int8 graph" if p == "int8" and card.int8 is None else runs(settings.engine, p) or ""
@@ -187,6 +188,7 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
             continue
         check = (photos, references, sample)
         passed, why = _candidates(files[precision], card, settings, precision, check, built)
+        built.clear()  # the reference, where fp32 passed on it, lives on in ``passed``
         if not passed:
             unserved[precision] = why
             disagrees |= {precision} if "disagrees" in why else set()
@@ -194,11 +196,11 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
         timed = len(passed) > 1 or precision == "bf16"
         times, failed = _median_ms(passed, photo) if timed else (dict.fromkeys(passed, 0.0), {})
         measured |= {f"{engine} {precision}": ms for engine, ms in times.items() if timed}
-        if not times:
+        if times:
+            engine = _fastest(times)
+            chosen[precision] = (engine, passed[engine], times[engine])
+        else:
             unserved[precision] = "; ".join(failed.values())
-            continue
-        engine = _fastest(times)
-        chosen[precision] = (engine, passed[engine], times[engine])
         del passed  # the engines not chosen go now, not while the next precision's are checked
     if "fp32" not in chosen:
         raise ModelLoadError(f"{files['fp32']}: its fp32 graph cannot be served here: {unserved['fp32']}")

@@ -61,7 +61,7 @@ class EagerGenerator:
         self.module = module
         self.multiple = multiple
 
-    def predict_raw(self, rgb: np.ndarray) -> np.ndarray:
+    def predict_raw(self, rgb: np.ndarray, *, once: bool = False) -> np.ndarray:
         x = torch.from_numpy(to_grid(rgb, self.multiple))
         device = next(self.module.parameters()).device
         with torch.inference_mode():
