@@ -13,7 +13,7 @@ $(INSTALLED): pyproject.toml
 	$(PY) -m pip install -q --upgrade pip
 	# torch first and exactly: this version has a CPU build here; anything looser pulls CUDA wheels.
 	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[train,dev]'
+	$(PY) -m pip install -q -e '.[train,ros,dev]'
 	touch $@
 
 $(SERVE_INSTALLED): pyproject.toml

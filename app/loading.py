@@ -166,14 +166,12 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
     files = _graph_files(folder, card, settings.engine)
     sample = _sample(folder, card)
     photo = sample if sample is not None else np.zeros((card.camera.height, card.camera.width, 3), np.uint8)
-    built = _reference(files["fp32"], card, settings)
-    ((_, reference_runner),) = built.items()
+    built = _reference(files["fp32"], card, settings)  # held only while fp32's candidates are checked
     try:
         photos = check_sizes(photo)
-        references = [card.depth_encoding.decode(reference_runner.predict_raw(p, once=True)) for p in photos]
+        references = [card.depth_encoding.decode(r.predict_raw(p, once=True)) for r in built.values() for p in photos]
     except Exception as e:  # a graph that loads but cannot run: refused once, with why, never a 500 per request
         raise ModelLoadError(f"{files['fp32']}: its fp32 graph fails on its check photo: {e}") from e
-    del reference_runner  # held by ``built`` only while fp32's candidates are checked
     # A precision without a file to run: no int8 graph in the card, or an engine that runs fp32 only.
     unserved: dict[RunPrecision, str] = {
         p: "this version has no int8 graph" if p == "int8" and card.int8 is None else runs(settings.engine, p) or ""

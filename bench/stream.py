@@ -25,8 +25,8 @@ import httpx
 import numpy as np
 from PIL import Image
 
-from app.stream_client import open_stream, raw_depth, receive
 from app.temporal import TemporalFilter
+from clients.stream import open_stream, raw_depth, receive
 from contract.geometry import Intrinsics
 from harness.flicker import read_pose, sequence_flicker
 from harness.service import BUNDLED_REGISTRY, running_service, server_timing
@@ -296,19 +296,22 @@ def file_write_ms(size: float, folder: Path, frames: int = 30) -> float:
 
 def streamed_to(url: str, recording: Path, scratch: Path, to_bag: bool, stride: int) -> float:
     """Frames/s of ``rgb2cloud stream``'s loop from ``recording``, writing a bag with every topic or nothing."""
-    from cli.stream import Outputs, run_stream
+    from cli.stream import STREAM_MAX_PIXELS, run_stream
+    from clients.sinks.bag import BagSink
+    from clients.sinks.ros_messages import RosMessages, Topics
     from recordings.formats import ReadOptions
-    from recordings.ros2_bag import DepthBag, Topics
     from recordings.sources import stream_source
 
     source = stream_source(str(recording), None, ReadOptions(max_frames=None), scratch)
-    bag = DepthBag(scratch / "bag", Topics(), source.frame_id) if to_bag else None
+    messages = RosMessages(Topics(), source.frame_id, with_colour=True, with_sensor_depth=True)
+    sinks = [BagSink(scratch / "bag", messages)] if to_bag else []
     started = time.perf_counter()
-    written, _ = run_stream(source, url, Outputs(None, False, bag, True, True), {"stride": stride}, False)
-    rate = written / (time.perf_counter() - started)
-    if bag is not None:
-        bag.close()
-    return rate
+    try:
+        written, _ = run_stream(source, url, sinks, {"stride": stride}, {}, STREAM_MAX_PIXELS)
+    finally:
+        for sink in sinks:
+            sink.close()
+    return written / (time.perf_counter() - started)
 
 
 def closed(url: str, result: T) -> T:

@@ -1,11 +1,10 @@
 """``rgb2cloud stream SOURCE``: a camera, a video, a folder of photos or a recording through ``/v1/stream``.
 
-The client side of the stream for robots: frames go out through one WebSocket (``app.stream_client``),
-and each answer's depth and point cloud are written to a folder (16-bit depth PNGs, PLYs) and/or a
-ROS 2 bag (``recordings.ros2_bag``). Answers come as raw float32 metres and raw points, the stream's
-cheapest encodings, and are written with the service's own encoders, so a PNG here is byte for byte
-what ``/depth`` returns. It lives in the command line because it joins the two torch-free halves the
-serving install may hold: the service's client and the recordings' readers.
+The client side of the stream for robots: frames go out through one WebSocket (``clients.stream``), and
+each answer's depth and point cloud go to every sink asked for (``clients.sinks``): a folder of 16-bit depth
+PNGs and PLYs, a ROS 2 bag, a live Foxglove server. Answers come as raw float32 metres and raw points, the
+stream's cheapest encodings. It lives in the command line because it joins the two torch-free halves the
+serving install may hold: the clients and the recordings' readers.
 """
 
 from __future__ import annotations
@@ -16,11 +15,11 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
 import typer
 
 from contract.errors import UserError
@@ -29,54 +28,6 @@ CAMERA_HELP = (
     "{}, pixels: a recording's in its own pixels, as fit takes it (its camera is overridden, then scaled to "
     "each photo sent); a camera's, video's or photos' in their frames' pixels"
 )
-
-
-@dataclass
-class Outputs:
-    """Where answers go: a folder (``out``, with PLYs if ``pointcloud``) and/or an open bag."""
-
-    out: Path | None
-    pointcloud: bool
-    bag: Any | None  # recordings.ros2_bag.DepthBag
-    with_colour: bool
-    with_sensor_depth: bool
-
-    def paths(self, name: str) -> list[Path]:
-        if self.out is None:
-            return []
-        return [self.out / f"{name}.depth.png", *([self.out / f"{name}.ply"] if self.pointcloud else [])]
-
-    def write(self, frame: Any, header: dict[str, Any], payloads: dict[str, bytes]) -> None:
-        from app.imaging import encode_depth_png
-        from app.ply import encode_ply
-        from app.stream_client import raw_depth, raw_points
-        from contract.geometry import POINT, Intrinsics
-
-        entries = {entry["kind"]: entry for entry in header["payloads"]}
-        metres = raw_depth(entries["depth"], payloads["depth"])
-        xyz, rgb = raw_points(entries["pointcloud"], payloads["pointcloud"])
-        if self.out is not None:
-            depth_path, *ply_path = self.paths(frame.name)
-            depth_path.write_bytes(encode_depth_png(metres))
-            if ply_path:
-                points = np.empty(len(xyz), dtype=POINT)
-                for i, axis in enumerate("xyz"):
-                    points[axis] = xyz[:, i]
-                for i, channel in enumerate(("red", "green", "blue")):
-                    points[channel] = rgb[:, i]
-                ply_path[0].write_bytes(encode_ply(points))
-        if self.bag is not None:
-            k = Intrinsics(**header["intrinsics"])
-            stamp, bag, topics = frame.stamp_ns, self.bag, self.bag.topics
-            bag.depth_image(topics["depth"], stamp, metres)
-            bag.camera_info(topics["depth_info"], stamp, k)
-            bag.point_cloud(stamp, xyz, rgb)
-            if self.with_colour:
-                bag.colour(stamp, frame.data, k)
-            if self.with_sensor_depth and (sensor := frame.sensor_metres()) is not None:
-                bag.depth_image(topics["sensor_depth"], stamp, sensor)
-                bag.camera_info(topics["sensor_depth_info"], stamp, k.resized(sensor.shape[1], sensor.shape[0]))
-            bag.frames += 1
 
 
 #: The service's default limit on a stream frame's pixels (RGB2CLOUD_STREAM_MAX_PIXELS): larger photos are
@@ -153,25 +104,42 @@ class Fitting:
         return Sending(frame, {key: scaled[key](v) for key, v in given.items()} or None)
 
 
+def paced(frames: Iterable[Any], rate: float) -> Iterator[Any]:
+    """Frames no sooner than their stamps say, at ``rate`` times their recorded pace (as ``ros2 bag play``
+    plays); ``rate`` 0 lets them go as fast as they are taken."""
+    began: tuple[float, int] | None = None
+    for frame in frames:
+        if rate > 0:
+            if began is None:
+                began = (time.monotonic(), frame.stamp_ns)
+            wait = began[0] + (frame.stamp_ns - began[1]) / 1e9 / rate - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+        yield frame
+
+
 def run_stream(
     source: Any,
     url: str,
-    outputs: Outputs,
+    sinks: list[Any],
     given: dict[str, Any],
     given_camera: dict[str, float],
-    overwrite: bool,
     max_pixels: int,
+    rate: float = 0.0,
+    skip_written: Any = None,
 ) -> tuple[int, int]:
-    """Every frame through one stream into ``outputs``; (frames written, frames refused). ``given_camera``
-    is the user's camera for a source whose frames carry none, in its frames' pixels."""
+    """Every frame through one stream into every sink (``clients.sinks``); (frames written, frames refused).
+    ``given_camera`` is the user's camera for a source whose frames carry none, in its frames' pixels;
+    ``rate`` paces a recording (``paced``); ``skip_written`` leaves out frames a folder holds already."""
     from tqdm import tqdm
     from websockets.exceptions import InvalidHandshake
 
-    from app.stream_client import answers, open_stream
+    from clients.stream import answers, open_stream
 
     frames = source.frames
-    if not source.live and outputs.out is not None and outputs.bag is None and not overwrite:
-        frames = (f for f in frames if not all(p.exists() for p in outputs.paths(f.name)))
+    if skip_written is not None and not source.live:
+        frames = (f for f in frames if not all(p.exists() for p in skip_written.paths(f.name)))
+    frames = paced(frames, 0.0 if source.live else rate)
 
     def say(line: str) -> None:
         tqdm.write(line, file=sys.stderr)
@@ -188,7 +156,7 @@ def run_stream(
         socket = open_stream(url, **stream_options(first, given))
     except InvalidHandshake as e:
         raise UserError(f"{url}: the service refused the stream: {e}") from None
-    writer = Writer(outputs)
+    writer = Writer(sinks)
     try:
         with socket:
             for answer in answers(socket, sending, lambda s: s.frame.data, source.live, options_of=lambda s: s.camera):
@@ -207,12 +175,12 @@ def run_stream(
 
 
 class Writer:
-    """Writes answers in a thread of its own, in order, so the next answers are read (and the service kept
-    busy) while a frame's files and bag messages go to disk. ``finish`` writes what is queued and stops;
+    """Writes answers to the sinks in a thread of its own, in order, so the next answers are read (and the
+    service kept busy) while a frame's files and messages go out. ``finish`` writes what is queued and stops;
     after Ctrl-C too, so each frame is written whole or not at all."""
 
-    def __init__(self, outputs: Outputs, depth: int = 8):
-        self.outputs, self.written = outputs, 0
+    def __init__(self, sinks: list[Any], depth: int = 8):
+        self.sinks, self.written = sinks, 0
         self._queue: queue.Queue = queue.Queue(maxsize=depth)
         self._failure: BaseException | None = None
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -222,7 +190,11 @@ class Writer:
         while (answer := self._queue.get()) is not None:
             if self._failure is None:
                 try:
-                    self.outputs.write(answer.item.frame, answer.header, answer.payloads)
+                    from clients.sinks import decoded
+
+                    frame = decoded(answer.item.frame, answer.header, answer.payloads)
+                    for sink in self.sinks:
+                        sink.write(frame)
                     self.written += 1
                 except BaseException as e:  # a full disk: raised where answers are read
                     self._failure = e
@@ -239,20 +211,56 @@ class Writer:
             raise self._failure
 
 
+#: Why a source's own depth cannot go beside the model's.
+NOT_REGISTERED = "bags, Kinect and phone recordings have it; this source's depth is as its sensor took it"
+
+# The longer options' types, named here so that ``stream`` reads as the list of its options.
+Source = Annotated[
+    str, typer.Argument(help="a camera (/dev/videoN or an index), a video, a folder of photos, or a recording")
+]
+Foxglove = Annotated[
+    str | None,
+    typer.Option(help="serve the bag's topics live to Foxglove at [HOST:]PORT (8765; 0.0.0.0:8765 for all)"),
+]
+Rate = Annotated[
+    float | None,
+    typer.Option(
+        min=0,
+        help="a recording's or video's pace: 1 as recorded (the default with --foxglove), "
+        "0 as fast as the service answers (the default otherwise)",
+    ),
+]
+WithSensorDepth = Annotated[
+    bool, typer.Option(help="bag, Foxglove: a recording's own depth, registered to colour, beside the model's")
+]
+Namespace = Annotated[
+    str, typer.Option(help="bag, Foxglove: the topics' namespace (realsense-ros's names under it; not the sensor's)")
+]
+
+
+def open_live_sinks(sinks: list[Any], bag: Path | None, foxglove: str | None, messages: Any) -> None:
+    """The bag and the Foxglove server, each appended to ``sinks`` as it opens, so the caller closes those
+    that did open when a later one fails."""
+    from clients.sinks.bag import BagSink
+    from clients.sinks.foxglove import FoxgloveSink
+
+    if bag is not None:
+        sinks.append(BagSink(bag, messages))
+    if foxglove is not None:
+        sinks.append(live := FoxgloveSink(foxglove, messages))
+        typer.echo(f"Foxglove: open ws://{live.host}:{live.port} (docs/robotics.md)", err=True)
+
+
 def stream(
-    source: Annotated[
-        str, typer.Argument(help="a camera (/dev/videoN or an index), a video, a folder of photos, or a recording")
-    ],
+    source: Source,
     out: Annotated[Path | None, typer.Option("-o", "--out", help="write NAME.depth.png (16-bit mm) here")] = None,
     bag: Annotated[Path | None, typer.Option(help="write a ROS 2 bag (MCAP) into this new folder")] = None,
+    foxglove: Foxglove = None,
+    rate: Rate = None,
     pointcloud: Annotated[bool, typer.Option(help="with --out: also NAME.ply")] = False,
-    with_colour: Annotated[bool, typer.Option(help="bag: the photos too, so the bag plays on its own")] = False,
-    with_sensor_depth: Annotated[
-        bool, typer.Option(help="bag: a recording's own depth, registered to colour, beside the model's")
-    ] = False,
-    namespace: Annotated[
-        str, typer.Option(help="bag: the topics' namespace (realsense-ros's names under it; not the sensor's own)")
-    ] = "/rgb2cloud",
+    with_colour: Annotated[bool, typer.Option(help="bag, Foxglove: the photos too")] = False,
+    with_sensor_depth: WithSensorDepth = False,
+    namespace: Namespace = "/rgb2cloud",
     url: Annotated[str | None, typer.Option(help="service URL (default: RGB2CLOUD_HOST and _PORT)")] = None,
     model: Annotated[str | None, typer.Option(help="NAME or NAME:VERSION (default: the service's)")] = None,
     fx: Annotated[float | None, typer.Option(help=CAMERA_HELP.format("focal length x"))] = None,
@@ -271,18 +279,19 @@ def stream(
     max_gap_ms: Annotated[float | None, typer.Option(help="a bag's colour and depth pairing window")] = None,
     overwrite: Annotated[bool, typer.Option(help="--out: redo frames whose files exist")] = False,
 ) -> None:
-    """Stream frames through a running service; write depth and point clouds to a folder or a ROS 2 bag."""
+    """Stream frames through a running service; depth and point clouds to a folder, a ROS 2 bag, or Foxglove live."""
     from websockets.exceptions import ConnectionClosed
 
-    from app.client import service_url
-    from app.stream_client import StreamRefused
+    from clients.photos import service_url
+    from clients.sinks.folder import FolderSink
+    from clients.sinks.ros_messages import RosMessages, Topics
+    from clients.stream import StreamRefused
     from recordings.folders import CameraFile
     from recordings.formats import ReadOptions
-    from recordings.ros2_bag import DepthBag, Topics
     from recordings.sources import stream_source
 
-    if out is None and bag is None:
-        raise UserError("nothing to write: give --out DIR and/or --bag DIR")
+    if out is None and bag is None and foxglove is None:
+        raise UserError("nothing to write: give --out DIR, --bag DIR and/or --foxglove [HOST:]PORT")
     overrides = CameraFile(fx, fy, cx, cy)
     given = {"model": model, "stride": stride, "max_depth": max_depth, "smooth": smooth}
     with tempfile.TemporaryDirectory(prefix="rgb2cloud-stream-") as scratch:
@@ -294,18 +303,17 @@ def stream(
         camera = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
         given_camera = {} if found.recorded_camera else {k: v for k, v in camera.items() if v is not None}
         if with_sensor_depth and not found.registered:
-            raise UserError(
-                f"{source}: --with-sensor-depth needs depth registered to colour (bags, Kinect and phone "
-                "recordings); this source's depth is as its sensor took it"
-            )
-        if out is not None:
-            out.mkdir(parents=True, exist_ok=True)
-        writer = DepthBag(bag, Topics(namespace), found.frame_id) if bag is not None else None
-        outputs = Outputs(out, pointcloud, writer, with_colour, with_sensor_depth)
-        typer.echo(f"streaming {source} ({found.description}) to {url or service_url()}", err=True)
+            raise UserError(f"{source}: --with-sensor-depth needs depth registered to colour ({NOT_REGISTERED})")
+        messages = RosMessages(Topics(namespace), found.frame_id, with_colour, with_sensor_depth)
+        folder = FolderSink(out, pointcloud) if out is not None else None
+        sinks: list[Any] = [] if folder is None else [folder]
         try:
+            open_live_sinks(sinks, bag, foxglove, messages)
+            skip_written = folder if folder is not None and len(sinks) == 1 and not overwrite else None
+            pace = rate if rate is not None else (1.0 if foxglove is not None else 0.0)
+            typer.echo(f"streaming {source} ({found.description}) to {url or service_url()}", err=True)
             written, refused = run_stream(
-                found, url or service_url(), outputs, given, given_camera, overwrite, max_pixels
+                found, url or service_url(), sinks, given, given_camera, max_pixels, pace, skip_written
             )
         except (StreamRefused, ConnectionClosed) as e:
             raise UserError(f"the stream ended: {e}") from None
@@ -313,8 +321,8 @@ def stream(
             typer.echo("stopped (Ctrl-C): what was written is complete", err=True)
             raise typer.Exit(130) from None
         finally:
-            if writer is not None:
-                writer.close()
+            for sink in sinks:
+                sink.close()
     typer.echo(f"{written} frames written" + (f", {refused} refused" if refused else ""))
     if refused:
         raise typer.Exit(1)

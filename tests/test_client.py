@@ -13,7 +13,7 @@ from conftest import REPO, TUM_FRAME, run_cli
 from PIL import Image
 from plyfile import PlyData
 
-from app.client import ClientOptions, run
+from clients.photos import ClientOptions, run
 from harness.service import free_port, running_service
 
 

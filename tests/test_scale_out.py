@@ -24,7 +24,7 @@ from conftest import REPO, TUM_FRAME, run_cli
 from PIL import Image
 from websockets.exceptions import InvalidStatus
 
-from app.stream_client import open_stream, receive
+from clients.stream import open_stream, receive
 from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, load_card, publish
 from harness.load import Load
 from harness.service import ServiceProcess, free_port, resident_mb

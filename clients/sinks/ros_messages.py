@@ -1,4 +1,5 @@
-"""A ROS 2 bag (MCAP storage, written with ``rosbags``) of served depth, as a depth camera's driver records it.
+"""Served depth as the ROS 2 messages a depth camera's driver publishes, serialised as CDR (``rosbags``):
+what the bag and the Foxglove sinks send, byte for byte the same.
 
 Per frame, stamped with the source frame's time and in its colour frame:
 
@@ -10,20 +11,20 @@ Per frame, stamped with the source frame's time and in its colour frame:
 - optionally the colour photo (``CompressedImage``, as sent) and the sensor's own depth (32FC1).
 
 Topic names follow realsense-ros under a namespace of our own (``/rgb2cloud`` by default), so a bag played
-beside the real sensor's driver never publishes on its ``/camera`` topics. Every image topic has its
-CameraInfo beside it. Frame ids are tf2's: no leading slash (ROS 1 bags often carry one, which tf2
-refuses). The bag's metadata is written when the writer closes, which ``close`` does on any exit,
-Ctrl-C included, so what was written stays a readable bag.
+(or a live view run) beside the real sensor's driver never publishes on its ``/camera`` topics. Every image
+topic has its CameraInfo beside it. Frame ids are tf2's: no leading slash (ROS 1 bags often carry one, which
+tf2 refuses).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from clients.sinks import Answer
 from contract.errors import UserError
 from contract.geometry import Intrinsics
 
@@ -71,35 +72,51 @@ def point_records(xyz: np.ndarray, rgb: np.ndarray) -> np.ndarray:
     return records
 
 
-class DepthBag:
-    """An open ROS 2 bag that frames are added to; ``close`` (or leaving the ``with``) finishes it."""
+@dataclass(frozen=True)
+class Message:
+    """One serialised message: where it goes, its type (``sensor_msgs/msg/Image``), stamp and CDR bytes."""
 
-    def __init__(self, path: Path, topics: Topics, frame_id: str):
-        from rosbags.rosbag2 import StoragePlugin, Writer
+    topic: str
+    msgtype: str
+    stamp_ns: int
+    cdr: bytes
+
+
+class RosMessages:
+    """Each answer as its ROS 2 messages (humble's definitions, which Jazzy's and Kilted's match for these)."""
+
+    def __init__(self, topics: Topics, frame_id: str, with_colour: bool = False, with_sensor_depth: bool = False):
         from rosbags.typesys import Stores, get_typestore
 
-        if Path(path).exists():
-            raise UserError(f"{path}: exists; a bag is written into a new folder")
         self.store = get_typestore(Stores.ROS2_HUMBLE)
         self.topics, self.frame_id = topics, frame_id.lstrip("/")  # tf2 refuses a leading slash
-        self.writer = Writer(Path(path), version=8, storage_plugin=StoragePlugin.MCAP)
-        self.writer.open()
-        self._connections: dict[str, Any] = {}
-        self.frames = 0
+        self.with_colour, self.with_sensor_depth = with_colour, with_sensor_depth
 
-    def __enter__(self) -> DepthBag:
-        return self
+    def definition(self, msgtype: str) -> str:
+        """The type's ``ros2msg`` text, its dependencies after it (what MCAP and Foxglove take as its schema)."""
+        return self.store.generate_msgdef(msgtype, ros_version=2)[0]
 
-    def __exit__(self, *_: object) -> None:
-        self.close()
+    def __call__(self, answer: Answer) -> Iterator[Message]:
+        stamp, k, topics = answer.stamp_ns, answer.camera, self.topics
+        yield self._message(topics["depth"], "sensor_msgs/msg/Image", stamp, self._depth(stamp, answer.metres))
+        yield self._message(topics["depth_info"], "sensor_msgs/msg/CameraInfo", stamp, self._info(stamp, k))
+        points = self._cloud(stamp, answer.xyz, answer.rgb)
+        yield self._message(topics["points"], "sensor_msgs/msg/PointCloud2", stamp, points)
+        if self.with_colour:
+            kind = "png" if answer.photo[:4] == b"\x89PNG" else "jpeg"
+            photo = self.store.types["sensor_msgs/msg/CompressedImage"](
+                header=self._header(stamp), format=kind, data=np.frombuffer(answer.photo, np.uint8)
+            )
+            yield self._message(topics["colour"], "sensor_msgs/msg/CompressedImage", stamp, photo)
+            yield self._message(topics["colour_info"], "sensor_msgs/msg/CameraInfo", stamp, self._info(stamp, k))
+        if self.with_sensor_depth and answer.sensor_metres is not None:
+            sensor = answer.sensor_metres
+            yield self._message(topics["sensor_depth"], "sensor_msgs/msg/Image", stamp, self._depth(stamp, sensor))
+            info = self._info(stamp, k.resized(sensor.shape[1], sensor.shape[0]))
+            yield self._message(topics["sensor_depth_info"], "sensor_msgs/msg/CameraInfo", stamp, info)
 
-    def close(self) -> None:
-        self.writer.close()
-
-    def _put(self, topic: str, msgtype: str, stamp_ns: int, message: Any) -> None:
-        if topic not in self._connections:
-            self._connections[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store)
-        self.writer.write(self._connections[topic], stamp_ns, self.store.serialize_cdr(message, msgtype))
+    def _message(self, topic: str, msgtype: str, stamp_ns: int, message: Any) -> Message:
+        return Message(topic, msgtype, stamp_ns, bytes(self.store.serialize_cdr(message, msgtype)))
 
     def _header(self, stamp_ns: int) -> Any:
         types = self.store.types
@@ -108,12 +125,12 @@ class DepthBag:
             stamp=types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=self.frame_id
         )
 
-    def depth_image(self, topic: str, stamp_ns: int, metres: np.ndarray) -> None:
+    def _depth(self, stamp_ns: int, metres: np.ndarray) -> Any:
         """32FC1 metres, NaN where there is no depth (0 in the service's millimetres)."""
         values = np.array(metres, dtype="<f4", order="C")  # a copy, row-major whatever the input's layout
         values[~(values > 0)] = np.nan
         height, width = values.shape
-        message = self.store.types["sensor_msgs/msg/Image"](
+        return self.store.types["sensor_msgs/msg/Image"](
             header=self._header(stamp_ns),
             height=height,
             width=width,
@@ -122,10 +139,9 @@ class DepthBag:
             step=width * 4,
             data=values.view(np.uint8).ravel(),
         )
-        self._put(topic, "sensor_msgs/msg/Image", stamp_ns, message)
 
-    def camera_info(self, topic: str, stamp_ns: int, k: Intrinsics) -> None:
-        message = self.store.types["sensor_msgs/msg/CameraInfo"](
+    def _info(self, stamp_ns: int, k: Intrinsics) -> Any:
+        return self.store.types["sensor_msgs/msg/CameraInfo"](
             header=self._header(stamp_ns),
             height=k.height,
             width=k.width,
@@ -140,17 +156,15 @@ class DepthBag:
                 x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
             ),
         )
-        self._put(topic, "sensor_msgs/msg/CameraInfo", stamp_ns, message)
 
-    def point_cloud(self, stamp_ns: int, xyz: np.ndarray, rgb: np.ndarray) -> None:
+    def _cloud(self, stamp_ns: int, xyz: np.ndarray, rgb: np.ndarray) -> Any:
         """One point per valid pixel: x, y, z in metres (camera frame) and the packed rgb, 16 bytes each."""
         types = self.store.types
-        records = point_records(xyz, rgb)
         fields = [
             types["sensor_msgs/msg/PointField"](name=name, offset=4 * i, datatype=FLOAT32, count=1)
             for i, name in enumerate(("x", "y", "z", "rgb"))
         ]
-        message = types["sensor_msgs/msg/PointCloud2"](
+        return types["sensor_msgs/msg/PointCloud2"](
             header=self._header(stamp_ns),
             height=1,
             width=len(xyz),
@@ -158,16 +172,6 @@ class DepthBag:
             is_bigendian=False,
             point_step=POINT_STEP,
             row_step=POINT_STEP * len(xyz),
-            data=records.ravel(),
+            data=point_records(xyz, rgb).ravel(),
             is_dense=True,
         )
-        self._put(self.topics["points"], "sensor_msgs/msg/PointCloud2", stamp_ns, message)
-
-    def colour(self, stamp_ns: int, encoded: bytes, k: Intrinsics) -> None:
-        """The photo as it was sent (JPEG or PNG), and its camera."""
-        kind = "png" if encoded[:4] == b"\x89PNG" else "jpeg"
-        message = self.store.types["sensor_msgs/msg/CompressedImage"](
-            header=self._header(stamp_ns), format=kind, data=np.frombuffer(encoded, np.uint8)
-        )
-        self._put(self.topics["colour"], "sensor_msgs/msg/CompressedImage", stamp_ns, message)
-        self.camera_info(self.topics["colour_info"], stamp_ns, k)

@@ -1,0 +1,57 @@
+"""Answers live on a Foxglove WebSocket server (the ``foxglove-sdk`` package, subprotocol
+``foxglove.sdk.v1``, the protocol ``foxglove_bridge`` speaks): one channel per topic, carrying the ROS 2
+messages ``ros_messages`` makes as CDR with their ``ros2msg`` schemas, so Foxglove's Image, 3D and camera
+panels show them as they would a ROS robot's. Each message is logged with the frame's own stamp."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from clients.sinks import Answer
+from clients.sinks.ros_messages import RosMessages
+from contract.errors import UserError
+
+INSTALL = "the Foxglove output needs the ros extra: pip install -e '.[ros]'"
+
+
+def address(given: str) -> tuple[str, int]:
+    """``[HOST:]PORT`` as (host, port); the host is 127.0.0.1 unless given (0.0.0.0 for every interface)."""
+    host, _, port = given.rpartition(":")
+    if not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise UserError(f"--foxglove {given!r}: give [HOST:]PORT, such as 8765 or 0.0.0.0:8765")
+    return host or "127.0.0.1", int(port)
+
+
+class FoxgloveSink:
+    def __init__(self, given: str, messages: RosMessages):
+        try:
+            import foxglove
+        except ImportError:
+            raise UserError(INSTALL) from None
+        host, port = address(given)
+        self.messages, self.foxglove, self.host = messages, foxglove, host
+        self.context = foxglove.Context()
+        try:
+            self.server = foxglove.start_server(name="rgb2cloud", host=host, port=port, context=self.context)
+        except RuntimeError as e:  # the port is taken, the host is not this machine's
+            raise UserError(f"--foxglove {given}: cannot serve there: {e}") from None
+        self.channels: dict[str, Any] = {}
+
+    @property
+    def port(self) -> int:
+        """The port it serves on (the one the system gave, for port 0)."""
+        return self.server.port
+
+    def write(self, answer: Answer) -> None:
+        for message in self.messages(answer):
+            if message.topic not in self.channels:
+                schema = self.foxglove.Schema(
+                    name=message.msgtype, encoding="ros2msg", data=self.messages.definition(message.msgtype).encode()
+                )
+                self.channels[message.topic] = self.foxglove.Channel(
+                    message.topic, schema=schema, message_encoding="cdr", context=self.context
+                )
+            self.channels[message.topic].log(message.cdr, log_time=message.stamp_ns)
+
+    def close(self) -> None:
+        self.server.stop()
