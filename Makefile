@@ -28,12 +28,15 @@ lint: $(INSTALLED)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 
-# The tests drive Debian's chromium (the web page) and nginx (the load balancer), and build and run the image with
-# podman (runc runs it; debootstrap builds the stand-in for python:3.11-slim); installing them needs root.
-SYSTEM_PACKAGES := chromium nginx-light podman runc debootstrap
+# The tests drive Debian's chromium (the web page) and nginx (the load balancer), build and run the image with
+# podman (runc runs it; debootstrap builds the stand-in for python:3.11-slim), build a ROS 2 subscriber on
+# Cyclone DDS's C library (cyclonedds-dev, its idlc in cyclonedds-tools) and read RTPS with tshark; installing
+# them needs root.
+SYSTEM_PACKAGES := chromium nginx-light podman runc debootstrap cyclonedds-dev cyclonedds-tools tshark
 system-packages:
 	@command -v chromium >/dev/null && command -v nginx >/dev/null && command -v podman >/dev/null && \
-	    command -v runc >/dev/null && command -v debootstrap >/dev/null || \
+	    command -v runc >/dev/null && command -v debootstrap >/dev/null && command -v idlc >/dev/null && \
+	    test -f /usr/include/dds/dds.h && command -v tshark >/dev/null || \
 	    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(SYSTEM_PACKAGES); } || \
 	    { echo "make test needs $(SYSTEM_PACKAGES): apt-get install them as root"; exit 1; }
 

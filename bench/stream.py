@@ -13,13 +13,16 @@ The flicker table plays frames 850-999 in order as a stream (``harness.flicker``
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import statistics
 import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
+from collections.abc import Iterator
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import httpx
 import numpy as np
@@ -253,33 +256,79 @@ def flicker_rows(url: str, frames: list[bytes]) -> list[str]:
     return rows
 
 
-def bag_rows(url: str, frames: int = 150) -> list[str]:
-    """A 640x480 ROS 2 bag recording (7-Scenes frames 850-999, colour and depth) through ``rgb2cloud stream``'s
-    own loop, to a bag and to nowhere, taking turns twice each (the best of each kept), at point strides 1
-    and 2: frames/s and what writing the bag costs."""
-    from harness.recordings import write_aligned_bag
+#: The live outputs' rows, each against streaming to nowhere.
+OUTPUTS = ("nowhere", "bag", "ros2", "foxglove")
+#: The pace of the latency rows: a recording played as a camera of this many frames/s would give it.
+PACED_FPS = 5.0
 
+
+def recording_pairs(frames: int) -> list[tuple[np.ndarray, np.ndarray]]:
     pairs = []
     for n in list(TEST_FRAMES)[:frames]:
         rgb = np.asarray(Image.open(SEVEN_SCENES / f"frame-{n:06d}.color.jpg"))
         mm = np.asarray(Image.open(SEVEN_SCENES / f"frame-{n:06d}.depth.png"))
         pairs.append((rgb, np.where(mm == 65535, 0, mm).astype(np.uint16)))
+    return pairs
+
+
+def sink_rows(url: str, frames: int = 150) -> list[str]:
+    """A 640x480 ROS 2 bag recording (7-Scenes frames 850-999, colour and depth) through ``rgb2cloud stream``'s
+    own loop with every topic (colour and sensor depth too), at point strides 1 and 2, to nowhere, a bag, ROS 2
+    (the independent C subscriber taking every message) and Foxglove (a client subscribed to every channel):
+
+    - frames/s as fast as the service answers, the outputs taking turns twice each (the best of each kept), and
+      what each output costs against nowhere;
+    - p50 and p95 from a frame's capture to its publication, the recording played at ``PACED_FPS`` (as a camera
+      of that rate would give it): capture is when the paced recording lets the frame go, publication when every
+      message of the frame is out."""
+    from harness.recordings import write_aligned_bag
+    from harness.ros2_subscriber import LOOPBACK, build_subscriber
+
+    os.environ["CYCLONEDDS_URI"] = LOOPBACK  # this process publishes; the subscriber gets the same
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        recording = write_aligned_bag(Path(tmp) / "recording", "mcap", pairs)
+        recording = write_aligned_bag(Path(tmp) / "recording", "mcap", recording_pairs(frames))
+        subscriber = build_subscriber(Path(tmp))
         for stride in (1, 2):
-            rates: dict[bool, list[float]] = {False: [], True: []}
-            for run, to_bag in enumerate((False, True, False, True)):
-                rates[to_bag].append(streamed_to(url, recording, Path(tmp) / f"{stride}-{run}", to_bag, stride))
-            nowhere, bag = max(rates[False]), max(rates[True])
-            what = "all five topics" if stride == 1 else f"point stride {stride}"
-            rows.append(f"| to nowhere, point stride {stride} (answers decoded, nothing written) | {nowhere:.1f} | |")
-            rows.append(f"| to a ROS 2 bag, {what} | {bag:.1f} | {1 - bag / nowhere:.0%} |")
-            per_frame = sum(f.stat().st_size for f in (Path(tmp) / f"{stride}-3" / "bag").iterdir()) / frames
+            rates: dict[str, list[float]] = {output: [] for output in OUTPUTS}
+            for run in range(2):
+                for output in OUTPUTS:
+                    scratch = Path(tmp) / f"{stride}-{output}-{run}"
+                    rates[output].append(streamed_to(url, recording, scratch, output, stride, subscriber, frames)[0])
+            nowhere = max(rates["nowhere"])
+            latencies = {
+                output: streamed_to(
+                    url,
+                    recording,
+                    Path(tmp) / f"{stride}-{output}-paced",
+                    output,
+                    stride,
+                    subscriber,
+                    frames=int(PACED_FPS * 10),
+                    rate=PACED_FPS / 30,
+                )[1]
+                for output in OUTPUTS
+            }
+            for output in OUTPUTS:
+                best = max(rates[output])
+                cost = "" if output == "nowhere" else f"{1 - best / nowhere:.0%}"
+                p50, p95 = np.percentile(latencies[output], [50, 95])
+                rows.append(
+                    f"| {LABELS[output]}, point stride {stride} | {best:.1f} | {cost} | {p50:.0f} | {p95:.0f} |"
+                )
+            per_frame = sum(f.stat().st_size for f in (Path(tmp) / f"{stride}-bag-1" / "bag").iterdir()) / frames
             floor = f"{file_write_ms(per_frame, Path(tmp)):.1f} ms of CPU a frame"
             alone = f"a bag frame at stride {stride} ({per_frame / 1e6:.1f} MB) written to a file alone"
-            rows.append(f"| {alone} | | {floor} |")
+            rows.append(f"| {alone} | | {floor} | | |")
     return rows
+
+
+LABELS = {
+    "nowhere": "to nowhere (answers decoded, nothing written)",
+    "bag": "to a ROS 2 bag",
+    "ros2": "--ros2, a subscriber taking every message",
+    "foxglove": "--foxglove, a client subscribed to every channel",
+}
 
 
 def file_write_ms(size: float, folder: Path, frames: int = 30) -> float:
@@ -294,24 +343,95 @@ def file_write_ms(size: float, folder: Path, frames: int = 30) -> float:
         return (time.process_time() - started) / frames * 1000
 
 
-def streamed_to(url: str, recording: Path, scratch: Path, to_bag: bool, stride: int) -> float:
-    """Frames/s of ``rgb2cloud stream``'s loop from ``recording``, writing a bag with every topic or nothing."""
-    from cli.stream import STREAM_MAX_PIXELS, run_stream
+class Published:
+    """A sink last in the list: when each frame's messages were all out (monotonic seconds, by stamp)."""
+
+    def __init__(self) -> None:
+        self.at: list[tuple[int, float]] = []
+
+    def write(self, answer) -> None:
+        self.at.append((answer.stamp_ns, time.monotonic()))
+
+    def close(self) -> None:
+        pass
+
+
+def foxglove_client(port: int, stop: threading.Event) -> threading.Thread:
+    """A client that subscribes to every channel the server advertises and takes each message (not decoded)."""
+    from websockets.sync.client import connect
+
+    def run() -> None:
+        with connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], max_size=None) as socket:
+            while not stop.is_set():
+                try:
+                    message = socket.recv(timeout=0.2)
+                except TimeoutError:
+                    continue
+                if isinstance(message, str) and (op := json.loads(message))["op"] == "advertise":
+                    wanted = [{"id": c["id"], "channelId": c["id"]} for c in op["channels"]]
+                    socket.send(json.dumps({"op": "subscribe", "subscriptions": wanted}))
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    return thread
+
+
+def streamed_to(
+    url: str,
+    recording: Path,
+    scratch: Path,
+    output: str,
+    stride: int,
+    subscriber: Path,
+    frames: int,
+    rate: float = 0.0,
+) -> tuple[float, list[float]]:
+    """``rgb2cloud stream``'s loop from ``recording`` (its first ``frames``) to one output: frames/s, and each
+    frame's ms from its capture (the paced recording letting it go, ``rate`` > 0) to its publication."""
+    from cli.stream import STREAM_MAX_PIXELS, paced, run_stream
     from clients.sinks.bag import BagSink
+    from clients.sinks.foxglove import FoxgloveSink
+    from clients.sinks.ros2 import Ros2Sink
     from clients.sinks.ros_messages import RosMessages, Topics
+    from harness.ros2_subscriber import Subscription, fresh_domain
     from recordings.formats import ReadOptions
     from recordings.sources import stream_source
 
-    source = stream_source(str(recording), None, ReadOptions(max_frames=None), scratch)
+    source = stream_source(str(recording), None, ReadOptions(max_frames=frames), scratch)
     messages = RosMessages(Topics(), source.frame_id, with_colour=True, with_sensor_depth=True)
-    sinks = [BagSink(scratch / "bag", messages)] if to_bag else []
-    started = time.perf_counter()
+    published, sinks, listening, stop = Published(), [], None, threading.Event()
+    if output == "bag":
+        sinks.append(BagSink(scratch / "bag", messages))
+    elif output == "ros2":
+        domain = fresh_domain()
+        wanted = [f"{topic}={msgtype}:{frames}" for topic, msgtype in messages.topic_types()]
+        listening = Subscription(subscriber, domain, None, wanted, timeout_s=600)
+        sinks.append(Ros2Sink(domain, messages))
+    elif output == "foxglove":
+        sinks.append(live := FoxgloveSink("127.0.0.1:0", messages))
+        foxglove_client(live.port, stop)
+    sinks.append(published)
+    # Paced here rather than in run_stream, to note when each frame is let go: its capture, as a camera's.
+    captured: dict[int, float] = {}
+
+    def let_go(frames: Iterator[Any]) -> Iterator[Any]:
+        for frame in paced(frames, rate):
+            captured[frame.stamp_ns] = time.monotonic()
+            yield frame
+
+    started = time.monotonic()
     try:
-        written, _ = run_stream(source, url, sinks, {"stride": stride}, {}, STREAM_MAX_PIXELS)
+        written, _ = run_stream(
+            replace(source, frames=let_go(source.frames)), url, sinks, {"stride": stride}, {}, STREAM_MAX_PIXELS
+        )
     finally:
         for sink in sinks:
             sink.close()
-    return written / (time.perf_counter() - started)
+        stop.set()
+    seconds = time.monotonic() - started
+    if listening is not None:
+        listening.wait()  # every message of every frame reached the subscriber
+    return written / seconds, [(at - captured[stamp]) * 1000 for stamp, at in published.at]
 
 
 def closed(url: str, result: T) -> T:
@@ -338,7 +458,7 @@ def main() -> None:
     parser.add_argument("--fps", type=float, default=30, help="the camera rows' frame rate")
     parser.add_argument("--soak-frames", type=int, default=5000, help="frames sent while RSS is watched")
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--bag-only", action="store_true", help="only the rows streaming a recording to a bag")
+    parser.add_argument("--outputs-only", action="store_true", help="only the rows streaming a recording to outputs")
     args = parser.parse_args()
     frames = jpegs()
     count = int(args.seconds * args.fps)
@@ -346,9 +466,9 @@ def main() -> None:
     with running_service(threads=str(args.threads), precision="fp32", **env) as service:
         url = service.url
         lockstep(url, frames[:10], 2)  # warm
-        bags = closed(url, bag_rows(url))
-        if args.bag_only:
-            print_bag_rows(bags)
+        outputs = closed(url, sink_rows(url))
+        if args.outputs_only:
+            print_output_rows(outputs)
             return
         post_run = posts(url, frames, args.seconds)
         step_run = closed(url, lockstep(url, frames, args.seconds))
@@ -363,11 +483,15 @@ def main() -> None:
     print("\n| depth, frames 850-999 as a stream | flicker (mean relative) | against the sensor | scale jitter | δ1 |")
     print("|---|---|---|---|---|")
     print("\n".join(flicker))
-    print_bag_rows(bags)
+    print_output_rows(outputs)
 
 
-def print_bag_rows(rows: list[str]) -> None:
-    print("\n| a 640x480 ROS 2 bag recording streamed | frames/s | writing's cost |\n|---|---|---|")
+def print_output_rows(rows: list[str]) -> None:
+    print(
+        f"\n| a 640x480 ROS 2 bag recording streamed, every topic | frames/s | cost | p50 ms | p95 ms "
+        f"(at {PACED_FPS:g} fps) |"
+    )
+    print("|---|---|---|---|---|")
     print("\n".join(rows))
 
 

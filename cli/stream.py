@@ -2,9 +2,9 @@
 
 The client side of the stream for robots: frames go out through one WebSocket (``clients.stream``), and
 each answer's depth and point cloud go to every sink asked for (``clients.sinks``): a folder of 16-bit depth
-PNGs and PLYs, a ROS 2 bag, a live Foxglove server. Answers come as raw float32 metres and raw points, the
-stream's cheapest encodings. It lives in the command line because it joins the two torch-free halves the
-serving install may hold: the clients and the recordings' readers.
+PNGs and PLYs, a ROS 2 bag, live ROS 2 topics over DDS, a live Foxglove server. Answers come as raw float32
+metres and raw points, the stream's cheapest encodings. It lives in the command line because it joins the two
+torch-free halves the serving install may hold: the clients and the recordings' readers.
 """
 
 from __future__ import annotations
@@ -226,26 +226,41 @@ Rate = Annotated[
     float | None,
     typer.Option(
         min=0,
-        help="a recording's or video's pace: 1 as recorded (the default with --foxglove), "
+        help="a recording's or video's pace: 1 as recorded (the default with --ros2 or --foxglove), "
         "0 as fast as the service answers (the default otherwise)",
     ),
 ]
 WithSensorDepth = Annotated[
-    bool, typer.Option(help="bag, Foxglove: a recording's own depth, registered to colour, beside the model's")
+    bool, typer.Option(help="bag, ROS 2, Foxglove: a recording's own depth, registered to colour, beside the model's")
 ]
 Namespace = Annotated[
-    str, typer.Option(help="bag, Foxglove: the topics' namespace (realsense-ros's names under it; not the sensor's)")
+    str,
+    typer.Option(help="bag, ROS 2, Foxglove: the topics' namespace (realsense-ros's names under it; not the sensor's)"),
+]
+Ros2 = Annotated[bool, typer.Option("--ros2", help="publish the bag's topics live on ROS 2 (DDS; docs/robotics.md)")]
+RosDomain = Annotated[
+    int | None, typer.Option(min=0, max=232, help="--ros2: the ROS 2 domain (default: ROS_DOMAIN_ID, else 0)")
+]
+TfParent = Annotated[
+    str | None,
+    typer.Option(help="bag, ROS 2, Foxglove: /tf_static places the optical frame under this frame (camera_link)"),
 ]
 
 
-def open_live_sinks(sinks: list[Any], bag: Path | None, foxglove: str | None, messages: Any) -> None:
-    """The bag and the Foxglove server, each appended to ``sinks`` as it opens, so the caller closes those
-    that did open when a later one fails."""
+def open_live_sinks(
+    sinks: list[Any], bag: Path | None, ros2_domain: int | None, foxglove: str | None, messages: Any
+) -> None:
+    """The bag, the ROS 2 publishers and the Foxglove server, each appended to ``sinks`` as it opens, so the
+    caller closes those that did open when a later one fails."""
     from clients.sinks.bag import BagSink
     from clients.sinks.foxglove import FoxgloveSink
+    from clients.sinks.ros2 import Ros2Sink
 
     if bag is not None:
         sinks.append(BagSink(bag, messages))
+    if ros2_domain is not None:
+        sinks.append(Ros2Sink(ros2_domain, messages))
+        typer.echo(f"ROS 2: publishing under {messages.topics.namespace} in domain {ros2_domain}", err=True)
     if foxglove is not None:
         sinks.append(live := FoxgloveSink(foxglove, messages))
         typer.echo(f"Foxglove: open ws://{live.host}:{live.port} (docs/robotics.md)", err=True)
@@ -255,12 +270,15 @@ def stream(
     source: Source,
     out: Annotated[Path | None, typer.Option("-o", "--out", help="write NAME.depth.png (16-bit mm) here")] = None,
     bag: Annotated[Path | None, typer.Option(help="write a ROS 2 bag (MCAP) into this new folder")] = None,
+    ros2: Ros2 = False,
+    ros_domain: RosDomain = None,
     foxglove: Foxglove = None,
     rate: Rate = None,
     pointcloud: Annotated[bool, typer.Option(help="with --out: also NAME.ply")] = False,
     with_colour: Annotated[bool, typer.Option(help="bag, Foxglove: the photos too")] = False,
     with_sensor_depth: WithSensorDepth = False,
     namespace: Namespace = "/rgb2cloud",
+    tf_parent: TfParent = None,
     url: Annotated[str | None, typer.Option(help="service URL (default: RGB2CLOUD_HOST and _PORT)")] = None,
     model: Annotated[str | None, typer.Option(help="NAME or NAME:VERSION (default: the service's)")] = None,
     fx: Annotated[float | None, typer.Option(help=CAMERA_HELP.format("focal length x"))] = None,
@@ -279,19 +297,24 @@ def stream(
     max_gap_ms: Annotated[float | None, typer.Option(help="a bag's colour and depth pairing window")] = None,
     overwrite: Annotated[bool, typer.Option(help="--out: redo frames whose files exist")] = False,
 ) -> None:
-    """Stream frames through a running service; depth and point clouds to a folder, a ROS 2 bag, or Foxglove live."""
+    """Stream frames through a running service; depth and point clouds to a folder, a ROS 2 bag, or live to
+    ROS 2 and Foxglove."""
     from websockets.exceptions import ConnectionClosed
 
     from clients.photos import service_url
     from clients.sinks.folder import FolderSink
+    from clients.sinks.ros2 import domain_id
     from clients.sinks.ros_messages import RosMessages, Topics
     from clients.stream import StreamRefused
     from recordings.folders import CameraFile
     from recordings.formats import ReadOptions
     from recordings.sources import stream_source
 
-    if out is None and bag is None and foxglove is None:
-        raise UserError("nothing to write: give --out DIR, --bag DIR and/or --foxglove [HOST:]PORT")
+    if out is None and bag is None and not ros2 and foxglove is None:
+        raise UserError("nothing to write: give --out DIR, --bag DIR, --ros2 and/or --foxglove [HOST:]PORT")
+    if ros_domain is not None and not ros2:
+        raise UserError("--ros-domain is for --ros2")
+    ros2_domain = domain_id(ros_domain) if ros2 else None
     overrides = CameraFile(fx, fy, cx, cy)
     given = {"model": model, "stride": stride, "max_depth": max_depth, "smooth": smooth}
     with tempfile.TemporaryDirectory(prefix="rgb2cloud-stream-") as scratch:
@@ -304,13 +327,14 @@ def stream(
         given_camera = {} if found.recorded_camera else {k: v for k, v in camera.items() if v is not None}
         if with_sensor_depth and not found.registered:
             raise UserError(f"{source}: --with-sensor-depth needs depth registered to colour ({NOT_REGISTERED})")
-        messages = RosMessages(Topics(namespace), found.frame_id, with_colour, with_sensor_depth)
+        messages = RosMessages(Topics(namespace), found.frame_id, with_colour, with_sensor_depth, tf_parent)
         folder = FolderSink(out, pointcloud) if out is not None else None
         sinks: list[Any] = [] if folder is None else [folder]
         try:
-            open_live_sinks(sinks, bag, foxglove, messages)
+            open_live_sinks(sinks, bag, ros2_domain, foxglove, messages)
             skip_written = folder if folder is not None and len(sinks) == 1 and not overwrite else None
-            pace = rate if rate is not None else (1.0 if foxglove is not None else 0.0)
+            live = ros2 or foxglove is not None
+            pace = rate if rate is not None else (1.0 if live else 0.0)
             typer.echo(f"streaming {source} ({found.description}) to {url or service_url()}", err=True)
             written, refused = run_stream(
                 found, url or service_url(), sinks, given, given_camera, max_pixels, pace, skip_written
@@ -323,6 +347,11 @@ def stream(
         finally:
             for sink in sinks:
                 sink.close()
-    typer.echo(f"{written} frames written" + (f", {refused} refused" if refused else ""))
+    dropped = sum(getattr(sink, "dropped", 0) for sink in sinks)
+    typer.echo(
+        f"{written} frames written"
+        + (f", {refused} refused" if refused else "")
+        + (f", {dropped} ROS 2 messages a subscriber took too slowly to get" if dropped else "")
+    )
     if refused:
         raise typer.Exit(1)

@@ -8,8 +8,25 @@ from pathlib import Path
 from typing import Any
 
 from clients.sinks import Answer
-from clients.sinks.ros_messages import RosMessages
+from clients.sinks.ros_messages import TF_STATIC, Message, RosMessages
 from contract.errors import UserError
+
+
+def _tf_static_qos() -> Any:
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+
+    never = QosTime(0x7FFFFFFF, 0xFFFFFFFF)  # rmw's "infinite" as ros2 bag record writes it
+    return Qos(
+        QosHistory.KEEP_LAST,
+        1,
+        QosReliability.RELIABLE,
+        QosDurability.TRANSIENT_LOCAL,
+        never,
+        never,
+        QosLiveliness.AUTOMATIC,
+        never,
+        False,
+    )
 
 
 class BagSink:
@@ -25,13 +42,20 @@ class BagSink:
         self.frames = 0
 
     def write(self, answer: Answer) -> None:
+        if self.frames == 0 and (static := self.messages.static(answer.stamp_ns)) is not None:
+            self._write(static)
         for message in self.messages(answer):
-            if message.topic not in self._connections:
-                self._connections[message.topic] = self.writer.add_connection(
-                    message.topic, message.msgtype, typestore=self.messages.store
-                )
-            self.writer.write(self._connections[message.topic], message.stamp_ns, message.cdr)
+            self._write(message)
         self.frames += 1
+
+    def _write(self, message: Message) -> None:
+        if message.topic not in self._connections:
+            # /tf_static as tf2's static broadcaster offers it, so that ros2 bag play latches it
+            qos = [_tf_static_qos()] if message.topic == TF_STATIC else []
+            self._connections[message.topic] = self.writer.add_connection(
+                message.topic, message.msgtype, typestore=self.messages.store, offered_qos_profiles=qos
+            )
+        self.writer.write(self._connections[message.topic], message.stamp_ns, message.cdr)
 
     def close(self) -> None:
         self.writer.close()

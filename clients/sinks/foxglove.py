@@ -43,7 +43,8 @@ class FoxgloveSink:
         return self.server.port
 
     def write(self, answer: Answer) -> None:
-        for message in self.messages(answer):
+        static = self.messages.static(answer.stamp_ns) if not self.channels else None
+        for message in ([static] if static is not None else []) + list(self.messages(answer)):
             if message.topic not in self.channels:
                 schema = self.foxglove.Schema(
                     name=message.msgtype, encoding="ros2msg", data=self.messages.definition(message.msgtype).encode()

@@ -8,7 +8,10 @@ Per frame, stamped with the source frame's time and in its colour frame:
   service's depth is of an ideal pinhole camera, P = [K | 0]);
 - ``sensor_msgs/msg/PointCloud2``, float32 x, y, z and the packed ``rgb`` RViz colours by, one point
   per valid pixel (``is_dense``);
-- optionally the colour photo (``CompressedImage``, as sent) and the sensor's own depth (32FC1).
+- optionally the colour photo (``CompressedImage``, as sent) and the sensor's own depth (32FC1);
+- once, with a parent frame named, ``tf2_msgs/msg/TFMessage`` on ``/tf_static``: the optical frame at the
+  parent's origin, turned as REP 103 turns an optical frame (z forward, x right, y down) against a body frame
+  (x forward, y left, z up), as realsense-ros places ``camera_color_optical_frame`` under ``camera_color_frame``.
 
 Topic names follow realsense-ros under a namespace of our own (``/rgb2cloud`` by default), so a bag played
 (or a live view run) beside the real sensor's driver never publishes on its ``/camera`` topics. Every image
@@ -32,6 +35,12 @@ from contract.geometry import Intrinsics
 FLOAT32 = 7
 #: Bytes per point: x, y, z and rgb, four float32s.
 POINT_STEP = 16
+#: The rotation (x, y, z, w) from a REP 103 body frame to its optical frame: z forward, x right, y down.
+OPTICAL_ROTATION = (-0.5, 0.5, -0.5, 0.5)
+#: Where tf2's static transforms go: a topic of its own, outside any namespace.
+TF_STATIC = "/tf_static"
+IMAGE, CAMERA_INFO, CLOUD = "sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo", "sensor_msgs/msg/PointCloud2"
+COMPRESSED, TF_MESSAGE = "sensor_msgs/msg/CompressedImage", "tf2_msgs/msg/TFMessage"
 
 
 #: Each message's topic under the namespace, as realsense-ros names its own.
@@ -85,12 +94,50 @@ class Message:
 class RosMessages:
     """Each answer as its ROS 2 messages (humble's definitions, which Jazzy's and Kilted's match for these)."""
 
-    def __init__(self, topics: Topics, frame_id: str, with_colour: bool = False, with_sensor_depth: bool = False):
+    def __init__(
+        self,
+        topics: Topics,
+        frame_id: str,
+        with_colour: bool = False,
+        with_sensor_depth: bool = False,
+        tf_parent: str | None = None,
+    ):
         from rosbags.typesys import Stores, get_typestore
 
         self.store = get_typestore(Stores.ROS2_HUMBLE)
         self.topics, self.frame_id = topics, frame_id.lstrip("/")  # tf2 refuses a leading slash
         self.with_colour, self.with_sensor_depth = with_colour, with_sensor_depth
+        self.tf_parent = None if tf_parent is None else tf_parent.lstrip("/")
+        if self.tf_parent is not None and self.tf_parent in ("", self.frame_id):
+            raise UserError(f"--tf-parent {tf_parent!r}: name a frame other than the depth's own ({self.frame_id})")
+
+    def topic_types(self) -> list[tuple[str, str]]:
+        """Every (topic, type) these messages go out on, for an output that announces its topics up front."""
+        kinds = [("depth", IMAGE), ("depth_info", CAMERA_INFO), ("points", CLOUD)]
+        if self.with_colour:
+            kinds += [("colour", COMPRESSED), ("colour_info", CAMERA_INFO)]
+        if self.with_sensor_depth:
+            kinds += [("sensor_depth", IMAGE), ("sensor_depth_info", CAMERA_INFO)]
+        found = [(self.topics[kind], msgtype) for kind, msgtype in kinds]
+        return found + ([(TF_STATIC, TF_MESSAGE)] if self.tf_parent is not None else [])
+
+    def static(self, stamp_ns: int) -> Message | None:
+        """``/tf_static``'s one message, stamped ``stamp_ns``, if a parent frame was named: each sink sends it
+        once, before its first frame."""
+        if self.tf_parent is None:
+            return None
+        types = self.store.types
+        header = self._header(stamp_ns)
+        header.frame_id = self.tf_parent
+        x, y, z, w = OPTICAL_ROTATION
+        transform = types["geometry_msgs/msg/Transform"](
+            translation=types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+            rotation=types["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),
+        )
+        stamped = types["geometry_msgs/msg/TransformStamped"](
+            header=header, child_frame_id=self.frame_id, transform=transform
+        )
+        return self._message(TF_STATIC, TF_MESSAGE, stamp_ns, types[TF_MESSAGE]([stamped]))
 
     def definition(self, msgtype: str) -> str:
         """The type's ``ros2msg`` text, its dependencies after it (what MCAP and Foxglove take as its schema)."""
@@ -98,22 +145,22 @@ class RosMessages:
 
     def __call__(self, answer: Answer) -> Iterator[Message]:
         stamp, k, topics = answer.stamp_ns, answer.camera, self.topics
-        yield self._message(topics["depth"], "sensor_msgs/msg/Image", stamp, self._depth(stamp, answer.metres))
-        yield self._message(topics["depth_info"], "sensor_msgs/msg/CameraInfo", stamp, self._info(stamp, k))
+        yield self._message(topics["depth"], IMAGE, stamp, self._depth(stamp, answer.metres))
+        yield self._message(topics["depth_info"], CAMERA_INFO, stamp, self._info(stamp, k))
         points = self._cloud(stamp, answer.xyz, answer.rgb)
-        yield self._message(topics["points"], "sensor_msgs/msg/PointCloud2", stamp, points)
+        yield self._message(topics["points"], CLOUD, stamp, points)
         if self.with_colour:
             kind = "png" if answer.photo[:4] == b"\x89PNG" else "jpeg"
-            photo = self.store.types["sensor_msgs/msg/CompressedImage"](
+            photo = self.store.types[COMPRESSED](
                 header=self._header(stamp), format=kind, data=np.frombuffer(answer.photo, np.uint8)
             )
-            yield self._message(topics["colour"], "sensor_msgs/msg/CompressedImage", stamp, photo)
-            yield self._message(topics["colour_info"], "sensor_msgs/msg/CameraInfo", stamp, self._info(stamp, k))
+            yield self._message(topics["colour"], COMPRESSED, stamp, photo)
+            yield self._message(topics["colour_info"], CAMERA_INFO, stamp, self._info(stamp, k))
         if self.with_sensor_depth and answer.sensor_metres is not None:
             sensor = answer.sensor_metres
-            yield self._message(topics["sensor_depth"], "sensor_msgs/msg/Image", stamp, self._depth(stamp, sensor))
+            yield self._message(topics["sensor_depth"], IMAGE, stamp, self._depth(stamp, sensor))
             info = self._info(stamp, k.resized(sensor.shape[1], sensor.shape[0]))
-            yield self._message(topics["sensor_depth_info"], "sensor_msgs/msg/CameraInfo", stamp, info)
+            yield self._message(topics["sensor_depth_info"], CAMERA_INFO, stamp, info)
 
     def _message(self, topic: str, msgtype: str, stamp_ns: int, message: Any) -> Message:
         return Message(topic, msgtype, stamp_ns, bytes(self.store.serialize_cdr(message, msgtype)))
@@ -130,7 +177,7 @@ class RosMessages:
         values = np.array(metres, dtype="<f4", order="C")  # a copy, row-major whatever the input's layout
         values[~(values > 0)] = np.nan
         height, width = values.shape
-        return self.store.types["sensor_msgs/msg/Image"](
+        return self.store.types[IMAGE](
             header=self._header(stamp_ns),
             height=height,
             width=width,
@@ -141,7 +188,7 @@ class RosMessages:
         )
 
     def _info(self, stamp_ns: int, k: Intrinsics) -> Any:
-        return self.store.types["sensor_msgs/msg/CameraInfo"](
+        return self.store.types[CAMERA_INFO](
             header=self._header(stamp_ns),
             height=k.height,
             width=k.width,
@@ -164,7 +211,7 @@ class RosMessages:
             types["sensor_msgs/msg/PointField"](name=name, offset=4 * i, datatype=FLOAT32, count=1)
             for i, name in enumerate(("x", "y", "z", "rgb"))
         ]
-        return types["sensor_msgs/msg/PointCloud2"](
+        return types[CLOUD](
             header=self._header(stamp_ns),
             height=1,
             width=len(xyz),
