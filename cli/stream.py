@@ -297,24 +297,18 @@ def stream(
     max_gap_ms: Annotated[float | None, typer.Option(help="a bag's colour and depth pairing window")] = None,
     overwrite: Annotated[bool, typer.Option(help="--out: redo frames whose files exist")] = False,
 ) -> None:
-    """Stream frames through a running service; depth and point clouds to a folder, a ROS 2 bag, or live to
-    ROS 2 and Foxglove."""
+    """Stream frames through a running service; depth and clouds to a folder, a bag, ROS 2 or Foxglove live."""
     from websockets.exceptions import ConnectionClosed
 
     from clients.photos import service_url
     from clients.sinks.folder import FolderSink
-    from clients.sinks.ros2 import domain_id
     from clients.sinks.ros_messages import RosMessages, Topics
     from clients.stream import StreamRefused
     from recordings.folders import CameraFile
     from recordings.formats import ReadOptions
     from recordings.sources import stream_source
 
-    if out is None and bag is None and not ros2 and foxglove is None:
-        raise UserError("nothing to write: give --out DIR, --bag DIR, --ros2 and/or --foxglove [HOST:]PORT")
-    if ros_domain is not None and not ros2:
-        raise UserError("--ros-domain is for --ros2")
-    ros2_domain = domain_id(ros_domain) if ros2 else None
+    ros2_domain = chosen_outputs(out, bag, ros2, ros_domain, foxglove)
     overrides = CameraFile(fx, fy, cx, cy)
     given = {"model": model, "stride": stride, "max_depth": max_depth, "smooth": smooth}
     with tempfile.TemporaryDirectory(prefix="rgb2cloud-stream-") as scratch:
@@ -348,10 +342,20 @@ def stream(
             for sink in sinks:
                 sink.close()
     dropped = sum(getattr(sink, "dropped", 0) for sink in sinks)
-    typer.echo(
-        f"{written} frames written"
-        + (f", {refused} refused" if refused else "")
-        + (f", {dropped} ROS 2 messages a subscriber took too slowly to get" if dropped else "")
-    )
+    dropped_line = f", {dropped} ROS 2 messages a subscriber took too slowly to get" if dropped else ""
+    typer.echo(f"{written} frames written" + (f", {refused} refused" if refused else "") + dropped_line)
     if refused:
         raise typer.Exit(1)
+
+
+def chosen_outputs(
+    out: Path | None, bag: Path | None, ros2: bool, ros_domain: int | None, foxglove: str | None
+) -> int | None:
+    """Checks that some output was asked for, and gives the ROS 2 domain (None without --ros2)."""
+    from clients.sinks.ros2 import domain_id
+
+    if out is None and bag is None and not ros2 and foxglove is None:
+        raise UserError("nothing to write: give --out DIR, --bag DIR, --ros2 and/or --foxglove [HOST:]PORT")
+    if ros_domain is not None and not ros2:
+        raise UserError("--ros-domain is for --ros2")
+    return domain_id(ros_domain) if ros2 else None

@@ -19,6 +19,9 @@ LOOPBACK = (
     '<NetworkInterface address="127.0.0.1" multicast="true"/>'
     "</Interfaces></General></Domain></CycloneDDS>"
 )
+#: The same with 16 MB socket receive buffers, which full-resolution clouds (4.9 MB a message) need
+#: (docs/robotics.md); Cyclone DDS refuses to start unless the kernel allows that much (net.core.rmem_max).
+LOOPBACK_16MB = LOOPBACK.replace("</General>", '</General><Internal><SocketReceiveBufferSize min="16MB"/></Internal>')
 
 
 def build_subscriber(folder: Path) -> Path:
@@ -30,8 +33,8 @@ def build_subscriber(folder: Path) -> Path:
     return binary
 
 
-def loopback_env(domain: int) -> dict[str, str]:
-    return {**os.environ, "CYCLONEDDS_URI": LOOPBACK, "ROS_DOMAIN_ID": str(domain)}
+def loopback_env(domain: int, config: str = LOOPBACK) -> dict[str, str]:
+    return {**os.environ, "CYCLONEDDS_URI": config, "ROS_DOMAIN_ID": str(domain)}
 
 
 def fresh_domain() -> int:
@@ -41,15 +44,23 @@ def fresh_domain() -> int:
 
 class Subscription:
     """The subscriber running in ``domain``: ``topics`` as ``/topic=pkg/msg/Type[@transient_local]:COUNT``,
-    each sample kept in ``out`` (None: only counted)."""
+    each sample kept in ``out`` (None: only counted), Cyclone DDS configured by ``config``."""
 
-    def __init__(self, binary: Path, domain: int, out: Path | None, topics: list[str], timeout_s: float = 120):
+    def __init__(
+        self,
+        binary: Path,
+        domain: int,
+        out: Path | None,
+        topics: list[str],
+        timeout_s: float = 120,
+        config: str = LOOPBACK,
+    ):
         if out is not None:
             out.mkdir(parents=True, exist_ok=True)
         self.out, self.topics = out, topics
         self.process = subprocess.Popen(
             [str(binary), str(domain), str(timeout_s), "-" if out is None else str(out), *topics],
-            env=loopback_env(domain),
+            env=loopback_env(domain, config),
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
