@@ -395,7 +395,7 @@ def streamed_to(
 ) -> tuple[float, list[float]]:
     """``rgb2cloud stream``'s loop from ``recording`` (its first ``frames``) to one output: frames/s, and each
     frame's ms from its capture (the paced recording letting it go, ``rate`` > 0) to its publication."""
-    from cli.stream import STREAM_MAX_PIXELS, paced, run_stream
+    from cli.stream import STREAM_MAX_PIXELS, close_all, paced, run_stream
     from clients.sinks.bag import BagSink
     from clients.sinks.foxglove import FoxgloveSink
     from clients.sinks.ros2 import Ros2Sink
@@ -428,12 +428,11 @@ def streamed_to(
 
     started = time.monotonic()
     try:
-        written, _ = run_stream(
+        written = run_stream(
             replace(source, frames=let_go(source.frames)), url, sinks, {"stride": stride}, {}, STREAM_MAX_PIXELS
-        )
+        ).written
     finally:
-        for sink in sinks:
-            sink.close()
+        close_all(sinks)
         stop.set()
     seconds = time.monotonic() - started
     if listening is not None:

@@ -127,8 +127,8 @@ def run_stream(
     max_pixels: int,
     rate: float = 0.0,
     skip_written: Any = None,
-) -> tuple[int, int]:
-    """Every frame through one stream into every sink (``clients.sinks``); (frames written, frames refused).
+) -> Tally:
+    """Every frame through one stream into every sink (``clients.sinks``), and what became of the frames.
     ``given_camera`` is the user's camera for a source whose frames carry none, in its frames' pixels;
     ``rate`` paces a recording (``paced``); ``skip_written`` leaves out frames a folder holds already."""
     from tqdm import tqdm
@@ -146,10 +146,10 @@ def run_stream(
 
     sending = map(Fitting(max_pixels, given_camera, say), frames)
     first = next(sending, None)
+    tally = Tally()
     if first is None:
-        return 0, 0
+        return tally
     sending = itertools.chain([first], sending)
-    refused = 0
     bar = tqdm(desc="stream", unit="frame", mininterval=1.0)
     started = time.perf_counter()
     try:
@@ -161,8 +161,9 @@ def run_stream(
         with socket:
             for answer in answers(socket, sending, lambda s: s.frame.data, source.live, options_of=lambda s: s.camera):
                 bar.update(1)
+                tally.sent_again += answer.tries > 1
                 if answer.error is not None:
-                    refused += 1
+                    tally.refused += 1
                     say(f"{answer.item.frame.name}: {answer.error}")
                     continue
                 writer.put(answer)
@@ -171,7 +172,26 @@ def run_stream(
     finally:
         writer.finish()
         bar.close()
-    return writer.written, refused
+        tally.written = writer.written
+    return tally
+
+
+@dataclass
+class Tally:
+    """What became of a stream's frames: written to every sink, refused by the service (its words said per
+    frame), and sent again after a 503 (the service was busy), whether or not they then came back."""
+
+    written: int = 0
+    refused: int = 0
+    sent_again: int = 0
+
+    def summary(self) -> str:
+        said = [f"{self.written} frames written"]
+        if self.refused:
+            said.append(f"{self.refused} refused")
+        if self.sent_again:
+            said.append(f"{self.sent_again} sent again while the service was busy")
+        return ", ".join(said)
 
 
 class Writer:
@@ -330,22 +350,32 @@ def stream(
             live = ros2 or foxglove is not None
             pace = rate if rate is not None else (1.0 if live else 0.0)
             typer.echo(f"streaming {source} ({found.description}) to {url or service_url()}", err=True)
-            written, refused = run_stream(
-                found, url or service_url(), sinks, given, given_camera, max_pixels, pace, skip_written
-            )
+            tally = run_stream(found, url or service_url(), sinks, given, given_camera, max_pixels, pace, skip_written)
         except (StreamRefused, ConnectionClosed) as e:
             raise UserError(f"the stream ended: {e}") from None
         except KeyboardInterrupt:
             typer.echo("stopped (Ctrl-C): what was written is complete", err=True)
             raise typer.Exit(130) from None
         finally:
-            for sink in sinks:
-                sink.close()
+            close_all(sinks)
     dropped = sum(getattr(sink, "dropped", 0) for sink in sinks)
     dropped_line = f", {dropped} ROS 2 messages a subscriber took too slowly to get" if dropped else ""
-    typer.echo(f"{written} frames written" + (f", {refused} refused" if refused else "") + dropped_line)
-    if refused:
+    typer.echo(tally.summary() + dropped_line)
+    if tally.refused:
         raise typer.Exit(1)
+
+
+def close_all(sinks: list[Any]) -> None:
+    """Closes every sink, each whatever the others do: one that fails to close (a full disk under the bag)
+    never leaves the next open; the first failure is raised once all are closed."""
+    failures = []
+    for sink in sinks:
+        try:
+            sink.close()
+        except Exception as e:
+            failures.append(e)
+    if failures:
+        raise failures[0]
 
 
 def chosen_outputs(

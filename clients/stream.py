@@ -70,11 +70,13 @@ class StreamRefused(Exception):
 
 @dataclass
 class Answer(Generic[T]):
-    """One frame's answer: the item it was sent for, the header, and the payloads by kind."""
+    """One frame's answer: the item it was sent for, the header, the payloads by kind, and how often the
+    frame was sent (more than once after 503s)."""
 
     item: T
     header: dict[str, Any]
     payloads: dict[str, bytes]
+    tries: int = 1
 
     @property
     def error(self) -> str | None:
@@ -216,7 +218,7 @@ def _read_answers(talk: Conversation[T], encode: Callable[[T], bytes], live: boo
             continue
         talk.window.release()
         kinds = {e["kind"]: body for e, body in zip(header.get("payloads", []), bodies, strict=True)}
-        answer = Answer(entry.item, header, kinds)
+        answer = Answer(entry.item, header, kinds, entry.tries)
         if live:
             yield answer
             continue

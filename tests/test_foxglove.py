@@ -34,6 +34,7 @@ TOPICS = {
     "info": f"{NS}/aligned_depth_to_color/camera_info",
     "points": f"{NS}/depth/color/points",
     "colour": f"{NS}/color/image_raw/compressed",
+    "tf": "/tf_static",
 }
 
 
@@ -63,8 +64,10 @@ def decoded(entry: dict) -> bytes:
 def test_foxglove_clients_see_depth_camera_info_and_clouds_that_are_the_services(service, foxglove_client, tmp_path):  # noqa: F811
     stamps = write_video(tmp_path / "kitchen.mp4", KITCHEN[:30])
     port = free_port()
-    # 30 frames recorded over 1 s, played at a quarter of their pace: 4 s live, for the client to join.
+    # 30 frames recorded over 1 s, played at a quarter of their pace: 4 s live, for the client to join (after the
+    # first frame, so /tf_static reaches it only as a latched topic reaches a late subscriber).
     live = ["--foxglove", f"127.0.0.1:{port}", "--rate", "0.25", "--with-colour", "--stride", "4"]
+    live += ["--tf-parent", "camera_link"]
     cli = subprocess.Popen(
         [sys.executable, "-m", "cli", "stream", str(tmp_path / "kitchen.mp4"), "--url", service, *live],
         cwd=REPO,
@@ -88,17 +91,27 @@ def test_foxglove_clients_see_depth_camera_info_and_clouds_that_are_the_services
     got = {kind: json.loads(client.stdout)[topic] for kind, topic in TOPICS.items()}
 
     # ROS 2 messages as CDR with their ros2msg schemas, as foxglove_bridge advertises a ROS robot's.
-    schemas = {"depth": "Image", "info": "CameraInfo", "points": "PointCloud2", "colour": "CompressedImage"}
+    schemas = {
+        "depth": "sensor_msgs/msg/Image",
+        "info": "sensor_msgs/msg/CameraInfo",
+        "points": "sensor_msgs/msg/PointCloud2",
+        "colour": "sensor_msgs/msg/CompressedImage",
+        "tf": "tf2_msgs/msg/TFMessage",
+    }
     for kind, name in schemas.items():
-        assert got[kind]["channel"] == {
-            "encoding": "cdr",
-            "schemaName": f"sensor_msgs/msg/{name}",
-            "schemaEncoding": "ros2msg",
-        }
+        assert got[kind]["channel"] == {"encoding": "cdr", "schemaName": name, "schemaEncoding": "ros2msg"}
     depth, info, cloud, colour = (got[k]["message"] for k in ("depth", "info", "points", "colour"))
     stamp = depth["header"]["stamp"]
     assert stamp["sec"] * 1_000_000_000 + stamp["nanosec"] in stamps  # the video's own time
     assert {m["header"]["frame_id"] for m in (depth, info, cloud, colour)} == {"camera_color_optical_frame"}
+
+    # The optical frame under the parent named, turned as REP 103 says (test_ros2 checks the rotation's meaning).
+    (transform,) = got["tf"]["message"]["transforms"]
+    assert (transform["header"]["frame_id"], transform["child_frame_id"]) == (
+        "camera_link",
+        "camera_color_optical_frame",
+    )
+    assert transform["transform"]["rotation"] == {"x": -0.5, "y": 0.5, "z": -0.5, "w": 0.5}
 
     # The depth is /depth's for the photo that was sent, to the millimetre, NaN where /depth has none.
     photo = decoded(colour["data"])

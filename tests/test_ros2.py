@@ -126,8 +126,21 @@ def test_a_ros2_subscriber_gets_the_messages_the_bag_gets(service, subscriber, t
     }[kind]()
     domain = fresh_domain()
     types = {DEPTH: "sensor_msgs/msg/Image", INFO: "sensor_msgs/msg/CameraInfo", POINTS: "sensor_msgs/msg/PointCloud2"}
-    listening = Subscription(subscriber, domain, tmp_path / "got", [f"{t}={m}:{count}" for t, m in types.items()])
-    streaming = stream(service, source, domain, "--bag", str(tmp_path / "bag"), "--stride", "2")
+    wanted = [f"{t}={m}:{count}" for t, m in types.items()]
+    options = ["--bag", str(tmp_path / "bag"), "--stride", "2"]
+    if kind == "ros2 bag":  # a recording also has its colour and its own depth to give, and a parent frame
+        types |= {
+            f"{NS}/color/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+            f"{NS}/color/camera_info": "sensor_msgs/msg/CameraInfo",
+            f"{NS}/sensor/aligned_depth_to_color/image_raw": "sensor_msgs/msg/Image",
+            f"{NS}/sensor/aligned_depth_to_color/camera_info": "sensor_msgs/msg/CameraInfo",
+        }
+        wanted = [f"{t}={m}:{count}" for t, m in types.items()]
+        types["/tf_static"] = "tf2_msgs/msg/TFMessage"
+        wanted.append("/tf_static=tf2_msgs/msg/TFMessage@transient_local:1")
+        options += ["--with-colour", "--with-sensor-depth", "--tf-parent", "camera_link"]
+    listening = Subscription(subscriber, domain, tmp_path / "got", wanted)
+    streaming = stream(service, source, domain, *options)
     _, err = streaming.communicate(timeout=300)
     assert streaming.returncode == 0, err
     assert f"ROS 2: publishing under {NS} in domain {domain}" in err
@@ -136,7 +149,7 @@ def test_a_ros2_subscriber_gets_the_messages_the_bag_gets(service, subscriber, t
     store = get_typestore(Stores.ROS2_JAZZY)
     for (topic, msgtype), payloads in zip(types.items(), got, strict=True):
         written = bag[topic]
-        assert len(payloads) == len(written) == count, topic
+        assert len(payloads) == len(written) == (1 if topic == "/tf_static" else count), topic
         for payload, (bag_type, _, message) in zip(payloads, written, strict=True):
             assert payload[:2] == b"\x00\x01"  # the encapsulation: CDR, little-endian (XCDR1)
             assert bag_type == msgtype
@@ -255,3 +268,25 @@ def test_bad_ros2_options_are_one_line_errors(service, tmp_path):  # noqa: F811
         )
         assert result.returncode != 0 and says in result.stderr, (args, result.stderr)
         assert "Traceback" not in result.stderr, result.stderr
+
+
+def test_a_subscriber_that_hangs_costs_its_messages_not_the_stream(service, subscriber, tmp_path):  # noqa: F811
+    # A node that matched, then stopped (SIGSTOP: it neither reads nor acknowledges): the stream goes on without
+    # its acknowledgements, waits for them a bounded time at the end, and the bag beside it loses nothing.
+    count = 8
+    photos = kitchen_folder(tmp_path / "photos", count)
+    domain = fresh_domain()
+    hung = Subscription(
+        subscriber, domain, tmp_path / "got", [f"{POINTS}=sensor_msgs/msg/PointCloud2:{count}"], timeout_s=300
+    )
+    streaming = stream(service, photos, domain, "--bag", str(tmp_path / "bag"), "--rate", "0")
+    try:
+        hung.first_sample()
+        hung.process.send_signal(signal.SIGSTOP)
+        out, err = streaming.communicate(timeout=300)
+    finally:
+        hung.process.send_signal(signal.SIGCONT)
+        hung.process.kill()
+    assert streaming.returncode == 0 and "Traceback" not in err, err
+    assert f"{count} frames written" in out, out
+    assert len(read_bag(tmp_path / "bag")[POINTS]) == count

@@ -15,6 +15,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import av
@@ -27,6 +28,7 @@ from plyfile import PlyData
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
+from clients.stream import answers, open_stream
 from harness.recordings import MOSD_CAMERA, write_aligned_bag
 from harness.service import BUNDLED_REGISTRY, running_service
 
@@ -400,9 +402,9 @@ def test_a_resized_phone_photo_keeps_its_exif_orientation_and_focal_length(servi
 
 
 def test_a_busy_service_refuses_frames_with_503_and_the_stream_sends_them_again(tmp_path):
-    # One request at a time and no queue: while a POST runs, a stream frame gets 503. Another client's large
-    # photos keep the worker busy until the service has refused a stream frame, then stop, as a shared
-    # service's other clients come and go.
+    # One request at a time and no queue. Another client's stream of 4K frames holds the one worker (a stream's
+    # next frame waits in the service, so it takes the worker the moment its last lets go) until the service has
+    # refused a frame of ours with 503, then ends, as a shared service's other clients come and go.
     folder = tmp_path / "photos"
     folder.mkdir()
     for i, photo in enumerate(KITCHEN[:12]):
@@ -414,25 +416,27 @@ def test_a_busy_service_refuses_frames_with_503_and_the_stream_sends_them_again(
         counts = [line for line in lines if line.startswith('rgb2cloud_stream_frames_total{outcome="refused"')]
         return float(counts[0].split()[-1]) if counts else 0.0
 
+    large = io.BytesIO()
+    Image.open(KITCHEN[20]).resize((3840, 2160)).save(large, format="JPEG", quality=90)
     with running_service(**env, workers="1", max_queue="0") as up:
-        stop = threading.Event()
+        holding = threading.Event()
 
-        large = io.BytesIO()
-        Image.open(KITCHEN[20]).resize((4000, 3000)).save(large, format="JPEG", quality=90)
+        def frames() -> Iterator[bytes]:
+            while not refused(up.url):
+                yield large.getvalue()
 
-        def hammer() -> None:
-            with httpx.Client(timeout=60) as client:
-                while not stop.is_set() and not refused(up.url):
-                    client.post(f"{up.url}/depth", files={"image": large.getvalue()})
+        def other_client() -> None:
+            with open_stream(up.url, output="both", cloud_encoding="raw") as socket:
+                for _ in answers(socket, frames(), lambda frame: frame, live=False):
+                    holding.set()
 
-        other_client = threading.Thread(target=hammer)
-        other_client.start()
+        other = threading.Thread(target=other_client)
+        other.start()
         try:
+            assert holding.wait(timeout=60), "the other client's stream got no answer"
             result = stream_cli(up.url, str(folder), "--out", str(tmp_path / "out"))
         finally:
-            stop.set()
-            other_client.join()
-        times_refused = refused(up.url)
-    assert "12 frames written" in result.stdout and "refused" not in result.stdout
-    assert len(list((tmp_path / "out").glob("*.depth.png"))) == 12
-    assert times_refused >= 1  # 503s happened, and every frame still came back
+            other.join(timeout=120)
+    assert "12 frames written" in result.stdout and "refused" not in result.stdout, result.stdout
+    assert "sent again while the service was busy" in result.stdout  # 503s happened to our frames...
+    assert len(list((tmp_path / "out").glob("*.depth.png"))) == 12  # ...and every frame still came back

@@ -1,14 +1,17 @@
 """Answers live on a Foxglove WebSocket server (the ``foxglove-sdk`` package, subprotocol
 ``foxglove.sdk.v1``, the protocol ``foxglove_bridge`` speaks): one channel per topic, carrying the ROS 2
 messages ``ros_messages`` makes as CDR with their ``ros2msg`` schemas, so Foxglove's Image, 3D and camera
-panels show them as they would a ROS robot's. Each message is logged with the frame's own stamp."""
+panels show them as they would a ROS robot's. Each message is logged with the frame's own stamp.
+
+/tf_static is latched, as tf2's static broadcaster makes it in ROS 2: a client that subscribes to it gets the
+transform again with the next frame, so a Foxglove opened after the stream began still places the cloud."""
 
 from __future__ import annotations
 
 from typing import Any
 
 from clients.sinks import Answer
-from clients.sinks.ros_messages import RosMessages
+from clients.sinks.ros_messages import TF_STATIC, Message, RosMessages
 from contract.errors import UserError
 
 INSTALL = "the Foxglove output needs the ros extra: pip install -e '.[ros]'"
@@ -22,6 +25,18 @@ def address(given: str) -> tuple[str, int]:
     return host or "127.0.0.1", int(port)
 
 
+class StaticWanted:
+    """The server's listener: notes that a client subscribed to /tf_static, for the next frame to log it
+    again (logging from the server's own callback is left alone)."""
+
+    def __init__(self) -> None:
+        self.wanted = False
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        if channel.topic == TF_STATIC:
+            self.wanted = True
+
+
 class FoxgloveSink:
     def __init__(self, given: str, messages: RosMessages):
         try:
@@ -31,11 +46,15 @@ class FoxgloveSink:
         host, port = address(given)
         self.messages, self.foxglove, self.host = messages, foxglove, host
         self.context = foxglove.Context()
+        self.subscribed = StaticWanted()
         try:
-            self.server = foxglove.start_server(name="rgb2cloud", host=host, port=port, context=self.context)
+            self.server = foxglove.start_server(
+                name="rgb2cloud", host=host, port=port, context=self.context, server_listener=self.subscribed
+            )
         except RuntimeError as e:  # the port is taken, the host is not this machine's
             raise UserError(f"--foxglove {given}: cannot serve there: {e}") from None
         self.channels: dict[str, Any] = {}
+        self.static: Message | None = None
 
     @property
     def port(self) -> int:
@@ -43,8 +62,14 @@ class FoxgloveSink:
         return self.server.port
 
     def write(self, answer: Answer) -> None:
-        static = self.messages.static(answer.stamp_ns) if not self.channels else None
-        for message in ([static] if static is not None else []) + list(self.messages(answer)):
+        latched = []
+        if not self.channels:
+            self.static = self.messages.static(answer.stamp_ns)  # stamped with the first frame, as tf2's is
+            latched = [self.static] if self.static is not None else []
+        elif self.subscribed.wanted and self.static is not None:
+            self.subscribed.wanted = False
+            latched = [self.static]
+        for message in latched + list(self.messages(answer)):
             if message.topic not in self.channels:
                 schema = self.foxglove.Schema(
                     name=message.msgtype, encoding="ros2msg", data=self.messages.definition(message.msgtype).encode()

@@ -2,7 +2,8 @@
 // @foxglove/rosmsg2-serialization) and the `ws` WebSocket: it connects to URL, subscribes to the TOPICs, decodes
 // each message by the ros2msg schema its channel advertises, and prints one JSON object for the first stamp that
 // all TOPICs carried: each topic's channel (encoding, schema name and encoding) and decoded message, byte arrays
-// as base64. Exits 1 with a message on stderr if none comes within TIMEOUT_S.
+// as base64. A message with no header of its own (tf2_msgs/TFMessage, as on /tf_static) counts for every stamp.
+// Exits 1 with a message on stderr if none comes within TIMEOUT_S.
 //
 //   node subscribe.mjs URL TIMEOUT_S TOPIC...
 import wsProtocol from "@foxglove/ws-protocol";
@@ -46,17 +47,25 @@ client.on("advertise", (advertised) => {
     channels.set(client.subscribe(channel.id), { channel, reader });
   }
 });
+const unstamped = {}; // topic -> { channel, message }, for messages with no header
 client.on("message", ({ subscriptionId, data }) => {
   const { channel, reader } = channels.get(subscriptionId);
   const message = reader.readMessage(data);
-  const stamp = `${message.header.stamp.sec}.${message.header.stamp.nanosec}`;
-  const seen = byStamp.get(stamp) ?? {};
-  seen[channel.topic] = {
+  const entry = {
     channel: { encoding: channel.encoding, schemaName: channel.schemaName, schemaEncoding: channel.schemaEncoding },
     message: plain(message),
   };
-  byStamp.set(stamp, seen);
-  if (topics.every((topic) => topic in seen)) {
-    process.stdout.write(JSON.stringify(seen), () => process.exit(0));
+  if (message.header === undefined) {
+    unstamped[channel.topic] = entry;
+  } else {
+    const stamp = `${message.header.stamp.sec}.${message.header.stamp.nanosec}`;
+    byStamp.set(stamp, { ...(byStamp.get(stamp) ?? {}), [channel.topic]: entry });
+  }
+  for (const seen of byStamp.values()) {
+    const all = { ...unstamped, ...seen };
+    if (topics.every((topic) => topic in all)) {
+      process.stdout.write(JSON.stringify(all), () => process.exit(0));
+      return;
+    }
   }
 });
