@@ -27,7 +27,9 @@ def address(given: str) -> tuple[str, int]:
 
 class StaticWanted:
     """The server's listener: notes that a client subscribed to /tf_static, for the next frame to log it
-    again (logging from the server's own callback is left alone)."""
+    again (logging from the server's own callback is left alone). The server calls ``on_subscribe`` and
+    ``on_unsubscribe`` whatever its capabilities, so both are here (a missing one is an error it prints
+    at every client that leaves)."""
 
     def __init__(self) -> None:
         self.wanted = False
@@ -35,6 +37,9 @@ class StaticWanted:
     def on_subscribe(self, client: Any, channel: Any) -> None:
         if channel.topic == TF_STATIC:
             self.wanted = True
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        """Nothing to do: a channel nobody takes costs the server nothing."""
 
 
 class FoxgloveSink:
