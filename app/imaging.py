@@ -1,4 +1,4 @@
-"""Uploads to RGB arrays, and depth to PNG: the service's image edges.
+"""Uploads to RGB arrays, and depth to a colour preview: the service's image edges.
 
 Decoding is defensive: the pixel count is checked from the header before any
 pixel is decoded, truncated files are errors (never silently grey), EXIF
@@ -8,20 +8,17 @@ orientation is applied, and every Pillow mode becomes RGB uint8.
 from __future__ import annotations
 
 import io
-import struct
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from isal import isal_zlib
 from PIL import Image, ImageOps, UnidentifiedImageError
 
 from app.camera import exif_focal
 from contract.colormap import colorize
+from contract.encodings import PNG_COMPRESS_LEVEL
 
 READABLE = "JPEG, PNG, WebP, TIFF, BMP, GIF"
-#: Light compression: deflate is most of a PNG's encode time.
-PNG_COMPRESS_LEVEL = 1
 
 
 class BadImage(Exception):
@@ -84,57 +81,6 @@ def decode_image(data: bytes, max_pixels: int, subject: str = "the 'image' field
         return Photo(_to_rgb(ImageOps.exif_transpose(im)), focal)
     except Exception as e:  # truncated or corrupt pixel data
         raise BadImage(400, f"the image data is truncated or corrupt: {e}") from None
-
-
-def _png_chunk(kind: bytes, data: bytes) -> bytes:
-    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", isal_zlib.crc32(data, isal_zlib.crc32(kind)))
-
-
-def depth_millimetres(metres: np.ndarray, dtype: str = "<u2") -> np.ndarray:
-    """Metres -> whole millimetres as 16-bit integers (0 = no depth; beyond 65.535 m clipped), in ``dtype``'s
-    byte order: big-endian for PNG, little-endian for the stream's raw depth."""
-    mm = np.where(np.isfinite(metres) & (metres > 0), np.rint(metres * 1000.0), 0)
-    return np.clip(mm, 0, 65535).astype(dtype)
-
-
-def depth_metres(metres: np.ndarray) -> np.ndarray:
-    """Metres as little-endian float32, row-major, 0 where there is no depth: the stream's ``raw32``."""
-    values = np.where(np.isfinite(metres) & (metres > 0), metres, 0)
-    return np.ascontiguousarray(values, dtype="<f4")
-
-
-def depth_png_rows(metres: np.ndarray) -> np.ndarray:
-    """Millimetres as 16-bit big-endian PNG scanlines, each prefixed by the "Up" filter.
-
-    "Up" stores each byte minus the byte above: the depth is smooth, so most of
-    these are near zero and deflate well, without the per-row filter search that
-    made Pillow's encoder 1.8x slower for the same size.
-    """
-    height, width = metres.shape
-    big_endian = depth_millimetres(metres, ">u2").view(np.uint8).reshape(height, 2 * width)
-    rows = np.empty((height, 2 * width + 1), dtype=np.uint8)
-    rows[:, 0] = 2  # filter type "Up" (the first row sees zeros above it)
-    rows[0, 1:] = big_endian[0]
-    np.subtract(big_endian[1:], big_endian[:-1], out=rows[1:, 1:])
-    return rows
-
-
-def encode_depth_png(metres: np.ndarray) -> bytes:
-    """16-bit single-channel PNG in millimetres; 0 = no depth.
-
-    The scanlines are deflated by ISA-L at level 1: a standard zlib stream, made
-    several times faster than zlib's own level 1 at about the same size
-    (bench/serving.py compares the two). Tests decode the result with Pillow.
-    """
-    rows = depth_png_rows(metres)
-    height, width = rows.shape[0], (rows.shape[1] - 1) // 2
-    header = struct.pack(">IIBBBBB", width, height, 16, 0, 0, 0, 0)  # 16-bit greyscale
-    return (
-        b"\x89PNG\r\n\x1a\n"
-        + _png_chunk(b"IHDR", header)
-        + _png_chunk(b"IDAT", isal_zlib.compress(rows, PNG_COMPRESS_LEVEL))
-        + _png_chunk(b"IEND", b"")
-    )
 
 
 def encode_colormap_png(metres: np.ndarray, vmin: float, vmax: float) -> bytes:

@@ -9,10 +9,10 @@ from typing import Literal
 import numpy as np
 
 from app.camera import CameraQuery, PhotoCamera, photo_camera
-from app.imaging import decode_image, depth_metres, depth_millimetres, encode_colormap_png, encode_depth_png
+from app.imaging import decode_image, encode_colormap_png
 from app.loading import LoadedModel
-from app.ply import encode_ply
 from app.temporal import TemporalFilter
+from contract.encodings import depth_metres, depth_millimetres, encode_depth_png, encode_ply
 from contract.geometry import Intrinsics, point_cloud
 from contract.resample import depth_at_photo
 from contract.runtime import RunPrecision

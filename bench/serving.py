@@ -33,12 +33,12 @@ from isal import isal_zlib
 from PIL import Image
 
 from app.catalog import ModelCatalog
-from app.imaging import PNG_COMPRESS_LEVEL, decode_image, depth_png_rows, encode_depth_png
+from app.imaging import decode_image
 from app.loading import LoadedModel
-from app.ply import encode_ply
 from app.settings import Settings
 from contract.card import INT8_ONNX_FILE, ONNX_FILE, TORCHSCRIPT_FILE, ModelCard, list_versions
 from contract.codec import rgb_to_input
+from contract.encodings import PNG_COMPRESS_LEVEL, depth_png_rows, encode_depth_png, encode_ply
 from contract.geometry import Intrinsics, pad_to_multiple, point_cloud
 from contract.runtime import OnnxGenerator
 from harness.service import resident_mb, running_service, server_timing

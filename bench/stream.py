@@ -13,9 +13,10 @@ The flicker table plays frames 850-999 in order as a stream (``harness.flicker``
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
+import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -274,7 +275,7 @@ def recording_pairs(frames: int) -> list[tuple[np.ndarray, np.ndarray]]:
     return pairs
 
 
-def sink_rows(url: str, frames: int = 150) -> list[str]:
+def sink_rows(url: str, frames: int = len(TEST_FRAMES)) -> str:
     """A 640x480 ROS 2 bag recording (7-Scenes frames 850-999, colour and depth) through ``rgb2cloud stream``'s
     own loop with every topic (colour and sensor depth too), at point strides 1 and 2, to nowhere, a bag, ROS 2
     (the independent C subscriber taking every message) and Foxglove (a client subscribed to every channel):
@@ -282,10 +283,12 @@ def sink_rows(url: str, frames: int = 150) -> list[str]:
     - frames/s as fast as the service answers, the outputs taking turns twice each (the best of each kept), and
       what each output costs against nowhere. On one machine that cost holds the subscriber's or viewer's work
       too, as they share its cores with the service;
-    - the streaming process's CPU ms a frame in that run, and what the output adds to nowhere's: the publisher's
-      own cost, whoever receives;
+    - the streaming process's CPU ms a frame in each run, and what the output adds to nowhere's run beside it:
+      the publisher's own cost, whoever receives (a Foxglove viewer is a process of its own, outside it);
     - p50 and p95 from a frame's capture to its publication (``Streamed``), the recording paced as
-      ``PACED_RATE`` says (as a camera of that rate would give it)."""
+      ``PACED_RATE`` says (as a camera of that rate would give it).
+
+    The table, with its header."""
     from harness.recordings import write_aligned_bag
     from harness.ros2_subscriber import LOOPBACK_16MB, build_subscriber
 
@@ -319,8 +322,10 @@ def sink_rows(url: str, frames: int = 150) -> list[str]:
             }
             for output in OUTPUTS:
                 cost = "" if output == "nowhere" else f"{1 - best[output].fps / best['nowhere'].fps:.0%}"
-                cpu = f"{best[output].cpu_ms:.0f}"
-                added = "" if output == "nowhere" else f"{best[output].cpu_ms - best['nowhere'].cpu_ms:+.0f}"
+                # Both runs' CPU, and what the output added in each against nowhere's run beside it: their spread.
+                cpu = ", ".join(f"{run.cpu_ms:.0f}" for run in runs[output])
+                pairs = zip(runs[output], runs["nowhere"], strict=True)
+                added = "" if output == "nowhere" else ", ".join(f"{o.cpu_ms - n.cpu_ms:+.0f}" for o, n in pairs)
                 p50, p95 = np.percentile(latencies[output], [50, 95])
                 rows.append(
                     f"| {LABELS[output]}, point stride {stride} | {best[output].fps:.1f} | {cost} | {cpu} | {added} "
@@ -330,7 +335,12 @@ def sink_rows(url: str, frames: int = 150) -> list[str]:
             floor = f"{file_write_ms(per_frame, Path(tmp)):.1f} ms of CPU a frame"
             alone = f"a bag frame at stride {stride} ({per_frame / 1e6:.1f} MB) written to a file alone"
             rows.append(f"| {alone} | | | | {floor} | | |")
-    return rows
+    paced = PACED_RATE * RECORDED_FPS * PACED_FRAMES / frames
+    header = (
+        "| a 640x480 ROS 2 bag recording streamed, every topic | frames/s | cost | client CPU ms a frame, each run "
+        f"| the output's share, each run | p50 ms | p95 ms (at {paced:.1f} frames/s) |\n|---|---|---|---|---|---|---|"
+    )
+    return "\n".join([header, *rows])
 
 
 LABELS = {
@@ -366,40 +376,23 @@ class Published:
         pass
 
 
-class Viewer:
-    """A Foxglove client in a thread of this process that subscribes to every channel the server advertises and
-    takes each message (not decoded), until ``stop`` or the server ends; ``cpu_s`` is its CPU time once done,
-    the viewer's work and not the stream's."""
+#: The Foxglove viewer: subscribes to every channel the server advertises and takes each message (not
+#: decoded) until the server ends. A process of its own, so none of its work (websockets reads in a thread
+#: of its own) is counted as the stream's.
+VIEWER = """
+import json, sys
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import connect
 
-    def __init__(self, port: int, stop: threading.Event):
-        self.port, self.stop, self.cpu_s = port, stop, 0.0
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        from websockets.exceptions import ConnectionClosed
-        from websockets.sync.client import connect
-
-        try:
-            with connect(f"ws://127.0.0.1:{self.port}", subprotocols=["foxglove.sdk.v1"], max_size=None) as socket:
-                while not self.stop.is_set():
-                    try:
-                        message = socket.recv(timeout=0.2)
-                    except TimeoutError:
-                        continue
-                    except ConnectionClosed:  # the stream ended and the server stopped
-                        return
-                    if isinstance(message, str) and (op := json.loads(message))["op"] == "advertise":
-                        wanted = [{"id": c["id"], "channelId": c["id"]} for c in op["channels"]]
-                        socket.send(json.dumps({"op": "subscribe", "subscriptions": wanted}))
-        finally:
-            self.cpu_s = time.thread_time()
-
-    def finish(self) -> float:
-        """Stops it; its CPU seconds."""
-        self.stop.set()
-        self.thread.join(timeout=10)
-        return self.cpu_s
+with connect(sys.argv[1], subprotocols=["foxglove.sdk.v1"], max_size=None) as socket:
+    try:
+        for message in socket:
+            if isinstance(message, str) and (op := json.loads(message))["op"] == "advertise":
+                wanted = [{"id": c["id"], "channelId": c["id"]} for c in op["channels"]]
+                socket.send(json.dumps({"op": "subscribe", "subscriptions": wanted}))
+    except ConnectionClosed:
+        pass
+"""
 
 
 def streamed_to(
@@ -434,7 +427,7 @@ def streamed_to(
         sinks.append(Ros2Sink(domain, messages))
     elif output == "foxglove":
         sinks.append(live := FoxgloveSink("127.0.0.1:0", messages))
-        viewer = Viewer(live.port, threading.Event())
+        viewer = subprocess.Popen([sys.executable, "-c", VIEWER, f"ws://127.0.0.1:{live.port}"])
     sinks.append(published)
     # Paced here rather than in run_stream, to note when each frame is let go: its capture, as a camera's.
     captured: dict[int, float] = {}
@@ -450,10 +443,14 @@ def streamed_to(
             replace(source, frames=let_go(source.frames)), url, sinks, {"stride": stride}, {}, STREAM_MAX_PIXELS
         ).written
     finally:
-        close_all(sinks)
-        seconds = time.monotonic() - started
-        viewer_cpu = viewer.finish() if viewer is not None else 0.0  # its connecting, before the start, too
-        cpu = time.process_time() - cpu_started - viewer_cpu
+        try:
+            close_all(sinks, print)
+        finally:
+            if viewer is not None:  # the server stopped: the viewer ends
+                viewer.wait(timeout=30)
+    seconds, cpu = time.monotonic() - started, time.process_time() - cpu_started
+    if not written:
+        raise SystemExit(f"streaming to {output}: no frame was written")
     if listening is not None:
         listening.wait()  # every message of every frame reached the subscriber
     latencies = [(at - captured[stamp]) * 1000 for stamp, at in published.at]
@@ -465,7 +462,8 @@ class Streamed:
     """One run of ``streamed_to``: frames/s (closing the output included); each frame's ms from its capture
     (the paced recording letting it go, when paced) to its publication (every output's ``write`` returned:
     the bag's messages written, the DDS samples handed to Cyclone DDS, the Foxglove messages queued to the
-    server); and the CPU ms a frame that the streaming process spent, all its threads but a viewer's."""
+    server); and the CPU ms a frame that the streaming process spent, all its threads (a viewer is another
+    process)."""
 
     fps: float
     latencies_ms: list[float]
@@ -506,7 +504,7 @@ def main() -> None:
         lockstep(url, frames[:10], 2)  # warm
         outputs = closed(url, sink_rows(url))
         if args.outputs_only:
-            print_output_rows(outputs)
+            print(outputs)
             return
         post_run = posts(url, frames, args.seconds)
         step_run = closed(url, lockstep(url, frames, args.seconds))
@@ -521,17 +519,7 @@ def main() -> None:
     print("\n| depth, frames 850-999 as a stream | flicker (mean relative) | against the sensor | scale jitter | δ1 |")
     print("|---|---|---|---|---|")
     print("\n".join(flicker))
-    print_output_rows(outputs)
-
-
-def print_output_rows(rows: list[str]) -> None:
-    paced = PACED_RATE * RECORDED_FPS * PACED_FRAMES / len(TEST_FRAMES)
-    print(
-        "\n| a 640x480 ROS 2 bag recording streamed, every topic | frames/s | cost | client CPU ms a frame "
-        f"| the output's share | p50 ms | p95 ms (at {paced:.1f} frames/s) |"
-    )
-    print("|---|---|---|---|---|---|---|")
-    print("\n".join(rows))
+    print(f"\n{outputs}")
 
 
 def report(args: argparse.Namespace, post_run: Run, step_run: Run, png_run: Run, raw_run: Run, four: list[Run]):

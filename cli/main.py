@@ -235,7 +235,7 @@ def fit(
 ) -> None:
     """Fit a model of your space from a short RGB-D recording, score it honestly, and publish it."""
     from app.settings import Settings
-    from clients.photos import service_url
+    from cli.service import service_url
     from recordings.folders import CameraFile
     from recordings.formats import ReadOptions
     from trainer.fit.state import interrupted_hint
@@ -341,7 +341,8 @@ def client(
     ] = False,
 ) -> None:
     """Send images to a running service and save depth PNGs and/or PLY point clouds."""
-    from clients.photos import ClientOptions, run, service_url
+    from cli.service import service_url
+    from clients.photos import ClientOptions, run
 
     kinds = [k for k, on in (("depth", depth), ("pointcloud", pointcloud)) if on]
     if not kinds:

@@ -15,7 +15,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
@@ -320,7 +320,7 @@ def stream(
     """Stream frames through a running service; depth and clouds to a folder, a bag, ROS 2 or Foxglove live."""
     from websockets.exceptions import ConnectionClosed
 
-    from clients.photos import service_url
+    from cli.service import service_url
     from clients.sinks.folder import FolderSink
     from clients.sinks.ros_messages import RosMessages, Topics
     from clients.stream import StreamRefused
@@ -357,24 +357,27 @@ def stream(
             typer.echo("stopped (Ctrl-C): what was written is complete", err=True)
             raise typer.Exit(130) from None
         finally:
-            close_all(sinks)
-    dropped = sum(getattr(sink, "dropped", 0) for sink in sinks)
-    dropped_line = f", {dropped} ROS 2 messages a subscriber took too slowly to get" if dropped else ""
-    typer.echo(tally.summary() + dropped_line)
+            close_all(sinks, lambda line: typer.echo(line, err=True))
+    typer.echo(tally.summary() + "".join(sink.shortfall() for sink in sinks if hasattr(sink, "shortfall")))
     if tally.refused:
         raise typer.Exit(1)
 
 
-def close_all(sinks: list[Any]) -> None:
+def close_all(sinks: list[Any], echo: Callable[[str], None]) -> None:
     """Closes every sink, each whatever the others do: one that fails to close (a full disk under the bag)
-    never leaves the next open; the first failure is raised once all are closed."""
+    never leaves the next open. The first failure is raised once all are closed, unless an error is already
+    on its way up (called from a ``finally``): that one is what the user sees, and the failures to close
+    are each echoed as a line of their own."""
     failures = []
     for sink in sinks:
         try:
             sink.close()
         except Exception as e:
             failures.append(e)
-    if failures:
+    in_flight = sys.exc_info()[1] is not None
+    for failure in failures if in_flight else failures[1:]:
+        echo(f"also, an output failed to close: {failure}")
+    if failures and not in_flight:
         raise failures[0]
 
 

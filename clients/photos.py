@@ -14,31 +14,20 @@ import os
 import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
 from tqdm import tqdm
 
-from app.settings import Settings
-
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".webp", ".tif", ".tiff", ".bmp", ".gif"}
 OUTPUTS = {"depth": ("/depth", ".depth.png"), "pointcloud": ("/pointcloud", ".ply")}
 
 
-def service_url(settings: Settings | None = None) -> str:
-    """Where ``make serve`` listens, from the same settings: ``RGB2CLOUD_HOST`` and ``RGB2CLOUD_PORT``.
-
-    A service bound to every interface (0.0.0.0) is reached on the loopback address.
-    """
-    settings = settings or Settings()
-    host = "127.0.0.1" if settings.host in ("0.0.0.0", "::") else settings.host
-    return f"http://{host}:{settings.port}"
-
-
 @dataclass
 class ClientOptions:
-    url: str = field(default_factory=service_url)
+    #: The service's base URL (the CLI's default is the service's own settings: ``cli.service.service_url``).
+    url: str
     timeout_s: float = 60.0
     retries: int = 5
     concurrency: int = 1

@@ -16,6 +16,9 @@ from plyfile import PlyData
 from clients.photos import ClientOptions, run
 from harness.service import free_port, running_service
 
+#: Any base URL: the mocked transport answers every request itself.
+MOCKED = "http://127.0.0.1:8000"
+
 
 def _photos(folder, count=2):
     folder.mkdir()
@@ -53,7 +56,9 @@ def test_client_retries_503_then_succeeds(tmp_path):
             return httpx.Response(503, headers={"Retry-After": "0"}, json={"detail": "busy"})
         return httpx.Response(200, content=b"PNG")
 
-    outcomes = list(run(photos, ["depth"], tmp_path / "out", ClientOptions(retries=5), httpx.MockTransport(handler)))
+    outcomes = list(
+        run(photos, ["depth"], tmp_path / "out", ClientOptions(url=MOCKED, retries=5), httpx.MockTransport(handler))
+    )
     assert calls == ["/depth"] * 3
     assert outcomes[0][1].startswith("wrote") and (tmp_path / "out" / "photo0.depth.png").read_bytes() == b"PNG"
 
@@ -68,7 +73,7 @@ def test_an_unreachable_service_is_named_in_the_error(tmp_path):
 def test_client_reports_errors_and_gives_up_after_retries(tmp_path):
     photos = _photos(tmp_path / "photos", count=1)
     busy = httpx.MockTransport(lambda r: httpx.Response(503, headers={"Retry-After": "0"}, json={"detail": "busy"}))
-    outcomes = list(run(photos, ["depth"], None, ClientOptions(retries=2), busy))
+    outcomes = list(run(photos, ["depth"], None, ClientOptions(url=MOCKED, retries=2), busy))
     assert outcomes == [(photos / "photo0.jpg", "error: HTTP 503: busy")]
 
 

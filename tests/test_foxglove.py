@@ -64,8 +64,9 @@ def decoded(entry: dict) -> bytes:
 def test_foxglove_clients_see_depth_camera_info_and_clouds_that_are_the_services(service, foxglove_client, tmp_path):  # noqa: F811
     stamps = write_video(tmp_path / "kitchen.mp4", KITCHEN[:30])
     port = free_port()
-    # 30 frames recorded over 1 s, played at a quarter of their pace: 4 s live, for the client to join (after the
-    # first frame, so /tf_static reaches it only as a latched topic reaches a late subscriber).
+    # 30 frames recorded over 1 s, played at a quarter of their pace: 4 s live, for the client to join. The first
+    # /tf_static goes out as its channel is made, with the first frame, before any client can have subscribed to
+    # it, so it reaches the client only as a latched topic reaches a late subscriber.
     live = ["--foxglove", f"127.0.0.1:{port}", "--rate", "0.25", "--with-colour", "--stride", "4"]
     live += ["--tf-parent", "camera_link"]
     cli = subprocess.Popen(
@@ -157,3 +158,23 @@ def test_a_foxglove_address_that_is_not_one_is_one_line(service, tmp_path):  # n
         )
         assert result.returncode != 0 and "Traceback" not in result.stderr, result.stderr
         assert f"--foxglove {given!r}: give [HOST:]PORT" in result.stderr
+
+
+def test_the_server_speaks_foxglove_sdk_v1_and_refuses_a_client_offering_only_websocket_v1():
+    # What docs/robotics.md says of which apps connect: Lichtblick up to 1.21.0 offers foxglove.websocket.v1 alone.
+    from websockets.exceptions import InvalidStatus
+    from websockets.sync.client import connect
+
+    from clients.sinks.foxglove import FoxgloveSink
+    from clients.sinks.ros_messages import RosMessages, Topics
+
+    sink = FoxgloveSink("127.0.0.1:0", RosMessages(Topics(), "camera_color_optical_frame"))
+    try:
+        with pytest.raises(InvalidStatus) as refused:
+            connect(f"ws://127.0.0.1:{sink.port}", subprotocols=["foxglove.websocket.v1"], open_timeout=10)
+        assert refused.value.response.status_code == 400
+        with connect(f"ws://127.0.0.1:{sink.port}", subprotocols=["foxglove.sdk.v1"], open_timeout=10) as socket:
+            assert socket.subprotocol == "foxglove.sdk.v1"
+            assert json.loads(socket.recv(timeout=10))["op"] == "serverInfo"
+    finally:
+        sink.close()

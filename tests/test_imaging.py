@@ -7,7 +7,7 @@ import io
 import numpy as np
 from PIL import Image
 
-from app.imaging import encode_depth_png
+from contract.encodings import encode_depth_png
 
 
 def test_depth_png_round_trips_exactly_in_millimetres():

@@ -13,16 +13,18 @@ from pathlib import Path
 
 from conftest import REPO
 
-PACKAGES = ("contract", "app", "recordings", "trainer", "lab", "cli", "harness")
-#: Who may import whom. The contract is the base; the service and the trainer stand on it apart;
-#: the CLI assembles both; the research tooling stands on everything (its CLI shares the product's
+PACKAGES = ("contract", "app", "clients", "recordings", "trainer", "lab", "cli", "harness")
+#: Who may import whom. The contract is the base; the service, the clients and the trainer stand on it
+#: apart (the clients run beside a camera and never need the service's code, nor the service theirs);
+#: the CLI assembles them; the research tooling stands on everything (its CLI shares the product's
 #: options) and nothing stands on it.
 ALLOWED = {
     "contract": set(),
     "app": {"contract"},
+    "clients": {"contract"},
     "recordings": {"contract"},
     "trainer": {"contract", "recordings"},
-    "cli": {"contract", "app", "recordings", "trainer"},
+    "cli": {"contract", "app", "clients", "recordings", "trainer"},
     "lab": {"contract", "recordings", "trainer", "cli"},
     "harness": {"contract", "app", "recordings"},
 }

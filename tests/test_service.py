@@ -358,7 +358,7 @@ def test_a_retired_unknown_or_incoherent_setting_stops_startup_in_one_line(regis
 
 
 def test_the_client_reads_host_and_port_from_the_settings(monkeypatch):
-    from clients.photos import service_url
+    from cli.service import service_url
 
     monkeypatch.setenv("RGB2CLOUD_HOST", "0.0.0.0")
     monkeypatch.setenv("RGB2CLOUD_PORT", "8123")

@@ -20,8 +20,7 @@ class FolderSink:
         return [self.out / f"{name}.depth.png", *([self.out / f"{name}.ply"] if self.pointcloud else [])]
 
     def write(self, answer: Answer) -> None:
-        from app.imaging import encode_depth_png
-        from app.ply import encode_ply
+        from contract.encodings import encode_depth_png, encode_ply
         from contract.geometry import POINT
 
         depth_path, *ply_path = self.paths(answer.name)

@@ -82,7 +82,9 @@ class FoxgloveSink:
                 self.channels[message.topic] = self.foxglove.Channel(
                     message.topic, schema=schema, message_encoding="cdr", context=self.context
                 )
-            self.channels[message.topic].log(message.cdr, log_time=message.stamp_ns)
+            # Logged at this frame's time, a latched /tf_static sent again too (its header keeps the first
+            # frame's stamp, as tf2's does): a channel's log time never goes back for a client that joins late.
+            self.channels[message.topic].log(message.cdr, log_time=answer.stamp_ns)
 
     def close(self) -> None:
         self.server.stop()

@@ -21,7 +21,6 @@ node see the topics.
 
 from __future__ import annotations
 
-import contextlib
 import os
 from typing import Any
 
@@ -132,6 +131,7 @@ class Ros2Sink:
             raise UserError(f"ROS 2 (DDS domain {domain}): cannot join: {e}") from None
         self.writers = {topic: self._writer(topic, msgtype) for topic, msgtype in messages.topic_types()}
         self.dropped = 0
+        self.unacknowledged: list[str] = []
         self._sent_static = False
 
     def write(self, answer: Answer) -> None:
@@ -174,14 +174,34 @@ class Ros2Sink:
 
     def close(self) -> None:
         """Waits (a second at most per writer) for subscribers to acknowledge what was sent, then leaves
-        whether they did or not."""
+        whether they did or not, noting the topics whose acknowledgements did not all come."""
         from cyclonedds.core import DDSException
-        from cyclonedds.util import duration
 
-        for writer, _ in self.writers.values():
-            # cyclonedds 11.0.1 raises AttributeError where it means "timed out" (it looks the code up on
-            # Exception, not DDSException): a subscriber that did not acknowledge in time, as any error here.
-            with contextlib.suppress(AttributeError, DDSException):
-                writer.wait_for_acks(duration(seconds=1))
-        self.participant = None
-        self.writers.clear()
+        try:
+            self.unacknowledged = [topic for topic, (writer, _) in self.writers.items() if not acknowledged(writer)]
+        except DDSException as e:
+            raise UserError(f"ROS 2: waiting for subscribers to acknowledge: {e}") from None
+        finally:
+            self.participant = None
+            self.writers.clear()
+
+    def shortfall(self) -> str:
+        """What subscribers did not get, for the stream's last line ("" if they got everything)."""
+        parts = [f"{self.dropped} ROS 2 messages a subscriber took too slowly to get"] if self.dropped else []
+        if self.unacknowledged:
+            parts.append(f"{len(self.unacknowledged)} ROS 2 topics not acknowledged by every subscriber at the end")
+        return "".join(f", {part}" for part in parts)
+
+
+def acknowledged(writer: Any) -> bool:
+    """Whether every matched reliable reader acknowledged what ``writer`` sent, waiting a second at most."""
+    from cyclonedds.util import duration
+
+    try:
+        return writer.wait_for_acks(duration(seconds=1))
+    except AttributeError as e:
+        # cyclonedds 11.0.1 looks its timeout code up on Exception, not DDSException, and so raises this
+        # where it means "timed out"; any other AttributeError is a bug and goes on up.
+        if "DDS_RETCODE_TIMEOUT" not in str(e):
+            raise
+        return False
