@@ -122,6 +122,10 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
     assert not (REPO / "weights" / "my-room").exists()
     card = load_card(folder)
     assert card.training.fit.start_from == str(start) and card.training.fit.budget_min == 1.0
+    # The last checkpoint is published, none chosen on the selection frames (they draw the curves and samples).
+    checkpoints = tmp_path / "run" / "train" / "checkpoints"
+    assert not (checkpoints / "best.pt").exists() and (tmp_path / "run" / "train" / "samples").is_dir()
+    assert card.training.steps == json.loads((tmp_path / "run" / "train" / "summary.json").read_text())["steps"]
     assert card.training.fit.fit_id == json.loads((tmp_path / "run" / "fit.json").read_text())["fit_id"]
     split = card.training.fit.split
     assert {part: split[part]["frames"] for part in split} == {"train": 16, "selection": 2, "gap": 1, "holdout": 5}

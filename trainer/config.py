@@ -150,7 +150,11 @@ class TrainConfig(Strict):
     log_every: int = Field(10, ge=1)
     val_every: int = Field(500, ge=1)
     checkpoint_every: int = Field(500, ge=1)
-    select_metric: Literal["rel", "rmse", "log10", "delta1"] = "rel"
+    select_metric: Literal["rel", "rmse", "log10", "delta1"] | None = Field(
+        "rel",
+        description="the validation metric whose best checkpoint (best.pt) is the run's result; null: none is "
+        "chosen, the last checkpoint is the result, and validation only draws its curves and samples",
+    )
     threads: int | None = Field(None, ge=1, description="torch CPU threads per process")
     start_from: Path | None = Field(
         None,

@@ -266,7 +266,8 @@ def model_camera(config: RunConfig) -> Intrinsics:
 
 
 def validate(run: Run) -> None:
-    """Score the generator on the validation frames at ``run.step``; keep ``best.pt`` if it is the best yet."""
+    """Score the generator on the validation frames at ``run.step``; keep ``best.pt`` if it is the best yet by
+    ``train.select_metric`` (none is kept when that is null)."""
     if run.val_frames is None or run.camera is None or run.writer is None:
         return
     result, grid = score_generator(unwrap(run.generator), run.config, run.val_frames, run.camera)
@@ -275,6 +276,8 @@ def validate(run: Run) -> None:
     (run.out / "samples").mkdir(exist_ok=True)
     sample_grid(grid).save(run.out / "samples" / f"step_{run.step:07d}.png")
     metric = run.config.train.select_metric
+    if metric is None:  # the last checkpoint is the result
+        return
     score = -result[metric] if metric == "delta1" else result[metric]
     if run.best is None or score < run.best.score:
         run.best = Best(score, run.step, result)

@@ -84,7 +84,7 @@ class Plan:
 
 
 def measure_seconds(config: RunConfig) -> tuple[float, float]:
-    """Median seconds of one training step, and of one prediction on a selection frame, on this machine."""
+    """Median seconds of one training step, and of one prediction on a frame of the recording, on this machine."""
     device = pick_device(config.train.device, 0)
     if config.train.threads:
         torch.set_num_threads(config.train.threads)
@@ -99,7 +99,7 @@ def measure_seconds(config: RunConfig) -> tuple[float, float]:
         batch = {k: v.to(device) for k, v in next(batches).items()}
         gan_step(generator, discriminator, (opt_g, opt_d), scaler, gan_loss, config.loss, batch, amp)
 
-    frame = open_source(config.data.val[0])[0]
+    frame = open_source(config.data.train[0])[0]  # a photo of the recording, as the service will see its photos
     height, width = frame.depth.shape
     frame = resize_frame(frame, round(height * config.data.val_scale), round(width * config.data.val_scale))
     runner = EagerGenerator(InferenceGraph(generator, config.inference), config.generator.input_multiple)
