@@ -54,6 +54,7 @@ from trainer.evaluate import Predictor, evaluate_frames
 from trainer.gan import Autocast, build_networks, gan_step
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.losses import GANLoss
+from trainer.torch_support import require_supported_torch
 from trainer.visualize import sample_grid
 
 #: Config sections that define the networks and their targets; resume refuses to change them.
@@ -96,6 +97,7 @@ def train(
     re-plan the steps as they run (``fit``: a budget kept when steps run faster or slower
     than they were measured).
     """
+    require_supported_torch()
     ddp = setup_distributed("cuda" if config.train.device != "cpu" and torch.cuda.is_available() else "cpu")
     if (deadline is not None or revise is not None) and ddp.world_size > 1:
         raise ValueError("a deadline or a re-plan changes one process; under torchrun the ranks would part ways")

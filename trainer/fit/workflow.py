@@ -31,6 +31,7 @@ from trainer.fit.progress import Progress, RunLock
 from trainer.fit.scoring import score_holdout
 from trainer.fit.split import MIN_PAIRS, Split, split_recording
 from trainer.fit.state import FitState, new_fit_id, published_by, save_state
+from trainer.torch_support import require_supported_torch
 
 #: ``--from`` defaults to the newest version of this model in the bundled registry.
 BASE_MODEL = "rgb2cloud-7scenes"
@@ -96,6 +97,7 @@ def start_config(start: Path) -> dict[str, Any]:
 
 def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
     """Fit a model of the recorded place; returns the published version folder."""
+    require_supported_torch()  # before minutes of work that an unsupported torch would fail deep inside
     started = time.monotonic()
     run = options.run_dir
     with RunLock(run):
