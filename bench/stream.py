@@ -445,10 +445,15 @@ def streamed_to(
     finally:
         try:
             close_all(sinks, print)
+            seconds, cpu = time.monotonic() - started, time.process_time() - cpu_started
         finally:
             if viewer is not None:  # the server stopped: the viewer ends
-                viewer.wait(timeout=30)
-    seconds, cpu = time.monotonic() - started, time.process_time() - cpu_started
+                try:
+                    viewer.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    viewer.kill()
+    if viewer is not None and viewer.returncode:
+        raise SystemExit(f"the Foxglove viewer failed (exit {viewer.returncode}): its row would have had no viewer")
     if not written:
         raise SystemExit(f"streaming to {output}: no frame was written")
     if listening is not None:

@@ -440,3 +440,34 @@ def test_a_busy_service_refuses_frames_with_503_and_the_stream_sends_them_again(
     assert "12 frames written" in result.stdout and "refused" not in result.stdout, result.stdout
     assert "sent again while the service was busy" in result.stdout  # 503s happened to our frames...
     assert len(list((tmp_path / "out").glob("*.depth.png"))) == 12  # ...and every frame still came back
+
+
+class Closing:
+    """A sink whose close fails with ``error`` (None: closes), and notes that it was closed."""
+
+    def __init__(self, error: Exception | None = None):
+        self.error, self.closed = error, False
+
+    def close(self) -> None:
+        self.closed = True
+        if self.error is not None:
+            raise self.error
+
+
+def test_every_output_is_closed_and_a_failure_to_close_never_hides_the_error_on_its_way_up():
+    from cli.stream import close_all
+
+    # Nothing on its way up: every sink is closed, the first failure is raised, the others are said.
+    sinks, said = [Closing(OSError("disk full")), Closing(), Closing(ValueError("second"))], []
+    with pytest.raises(OSError, match="disk full"):
+        close_all(sinks, said.append)
+    assert all(sink.closed for sink in sinks) and said == ["also, an output failed to close: second"]
+
+    # An error on its way up (as from the stream, closing in a finally): it stays the one raised.
+    sinks, said = [Closing(OSError("disk full")), Closing()], []
+    with pytest.raises(KeyboardInterrupt):
+        try:
+            raise KeyboardInterrupt
+        finally:
+            close_all(sinks, said.append)
+    assert all(sink.closed for sink in sinks) and said == ["also, an output failed to close: disk full"]

@@ -189,7 +189,10 @@ class Ros2Sink:
         """What subscribers did not get, for the stream's last line ("" if they got everything)."""
         parts = [f"{self.dropped} ROS 2 messages a subscriber took too slowly to get"] if self.dropped else []
         if self.unacknowledged:
-            parts.append(f"{len(self.unacknowledged)} ROS 2 topics not acknowledged by every subscriber at the end")
+            topics = ", ".join(self.unacknowledged)
+            parts.append(
+                f"{len(self.unacknowledged)} ROS 2 topics not acknowledged by every subscriber at the end: {topics}"
+            )
         return "".join(f", {part}" for part in parts)
 
 
@@ -200,8 +203,9 @@ def acknowledged(writer: Any) -> bool:
     try:
         return writer.wait_for_acks(duration(seconds=1))
     except AttributeError as e:
-        # cyclonedds 11.0.1 looks its timeout code up on Exception, not DDSException, and so raises this
-        # where it means "timed out"; any other AttributeError is a bug and goes on up.
+        # cyclonedds 11.0.1 looks its timeout code up on Exception, not DDSException, and so raises this for
+        # every result but success: a timeout or any other failure to get the acknowledgements, which all
+        # read as "not acknowledged" here. Any other AttributeError is a bug and goes on up.
         if "DDS_RETCODE_TIMEOUT" not in str(e):
             raise
         return False
