@@ -91,6 +91,18 @@ def diagnose(
 
 
 @app.command()
+def failures(
+    run: Annotated[Path, typer.Argument(help="the --out folder of an `rgb2cloud fit` that has published", exists=True)],
+    worst: Annotated[int, typer.Option(min=1, help="how many of the worst views to draw")] = 4,
+    out: Annotated[Path | None, typer.Option(help="where views.md and worst.jpg go (default: RUN/failures)")] = None,
+) -> None:
+    """Where a fit fails: each held-out view scored, the worst drawn beside the sensor's depth."""
+    from lab.failures import failure_report
+
+    typer.echo(failure_report(run, worst, out or run / "failures"))
+
+
+@app.command()
 def novelty(
     root: Annotated[Path, typer.Argument(help="a 7-Scenes sequence folder (frame-NNNNNN.pose.txt)", exists=True)],
     splits: Annotated[list[str], typer.Argument(help="TRAIN:HELD_OUT frame ranges, e.g. 0-669:720-799")],

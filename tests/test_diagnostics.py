@@ -88,3 +88,20 @@ def test_diagnose_prints_both_diagnostics_for_a_published_model(registry):
     ).stdout
     assert "| tiny 0.1.0 (ONNX), median-scaled |" in stdout
     assert "ground-truth/predicted median per image" in stdout and "diagnostic, where delta1 fails" in stdout
+
+
+def test_the_failure_map_colours_each_pixel_by_how_delta1_judges_it():
+    """Ratios 1.25 and 0.75 fail (too far, too near), 1.2 passes; no reading is black: counted by hand."""
+    from lab.failures import PASS, TOO_FAR, TOO_NEAR, KeepViews, error_map
+
+    sensor = np.array([[2.0, 2.0, 2.0, 2.0, 0.0]], np.float32)
+    pred = np.array([[2.0, 2.5, 1.5, 2.4, 3.0]], np.float32)  # ratios 1, 1.25, 0.75, 1.2, (no reading)
+    valid = sensor > 0
+    expected = [[list(PASS), list(TOO_FAR), list(TOO_NEAR), list(PASS), [0, 0, 0]]]
+    assert error_map(pred, sensor, valid).tolist() == expected
+    # Two of the four valid pixels fail, both on the flat part: none of the failures is at a depth step.
+    frame = Frame(np.zeros((1, 5, 3), np.uint8), sensor, Intrinsics(1, 1, 0, 0, 5, 1), "flat")
+    keep = KeepViews()
+    _, rows, _ = evaluate_frames(lambda rgb, k: pred, [frame], min_m=0.1, max_m=10.0, diagnostics=[keep])
+    assert rows[0]["delta1"] == 0.5 and rows[0]["near_steps_failed"] == 0.0
+    assert keep.views["flat"].predicted is not None and keep.result() == {"kept": 1}

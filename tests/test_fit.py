@@ -172,6 +172,17 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
         listed = httpx.get(f"{service.url}/v1/models", timeout=10).json()["models"][0]["versions"][0]["card"]
         assert [d["licence"] for d in listed["data"]] == [d.licence for d in card.training.data]
     assert json.loads((tmp_path / "run" / "fit.json").read_text())["start_from"] == str(start)
+    # Where it fails: each held-out view scored again as fit scored them (their mean is the card's), the worst drawn.
+    lab = subprocess.run(
+        [sys.executable, "-m", "lab", "failures", str(tmp_path / "run"), "--worst", "2"],
+        cwd=REPO, capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    views = [line.split(" | ") for line in lab.stdout.splitlines() if line.startswith("| 1000.")]
+    assert len(views) == 5 and [float(v[1]) for v in views] == sorted(float(v[1]) for v in views)
+    assert abs(np.mean([float(v[1]) for v in views]) - card.metrics[0].delta1) <= 0.001
+    drawn = Image.open(tmp_path / "run" / "failures" / "worst.jpg")
+    height, width = frames[0].depth.shape
+    assert drawn.size == (4 * width, 3 * height)  # photo, sensor, model, δ1 map; the two worst and the best
 
 
 #: ``rgb2cloud ARGS`` whose process sends itself SIGINT (Ctrl-C) after the first training step that

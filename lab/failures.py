@@ -1,0 +1,142 @@
+"""Where a fit fails on the views its recording never saw: every held-out view scored, the worst drawn.
+
+A fit's card gives one δ1 over all its held-out frames. What to try next depends on which views
+fail and how: a whole view at the wrong distance (its sensor/predicted median ratio far from 1),
+wrong shapes at depth steps, or one region the recording never showed (a far corridor, a window).
+``failure_report`` scores each held-out view as the fit scored them all (the same frames, depth
+range and colour camera, from the run folder's ``fit.json``) and draws the worst beside the best:
+the photo, the sensor's depth, the model's, and where δ1 fails.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageDraw
+
+from contract.colormap import colorize
+from contract.errors import UserError
+from lab.diagnostics import MedianScaled, near_depth_steps
+from recordings.frames import Frame
+from trainer.config import DataSource
+from trainer.data.sources import open_source
+from trainer.evaluate import evaluate_frames, load_predictor
+
+#: δ1's threshold: a pixel fails where prediction and sensor differ by this factor or more.
+DELTA1_RATIO = 1.25
+#: The δ1 map: grey where a pixel passes, red where the model puts it too far, blue too near, black no reading.
+PASS, TOO_FAR, TOO_NEAR = (150, 150, 150), (220, 30, 30), (30, 80, 230)
+
+
+@dataclass
+class ViewRecord:
+    """What each scored view keeps for the drawing: the photo, the sensor's depth, the model's at its pixels."""
+
+    name: str
+    rgb: np.ndarray
+    sensor: np.ndarray
+    predicted: np.ndarray
+    near_steps_failed: float
+
+
+class KeepViews:
+    """A diagnostic for ``evaluate_frames`` that keeps every view it scores, so the worst can be drawn after."""
+
+    name = "views"
+
+    def __init__(self) -> None:
+        self.views: dict[str, ViewRecord] = {}
+
+    def add(self, pred: np.ndarray, frame: Frame, valid: np.ndarray) -> dict[str, float]:
+        fails = valid & (delta1_error(pred, frame.depth) != 0)
+        near = near_depth_steps(frame.depth, valid)
+        share = float((fails & near).sum() / fails.sum()) if fails.any() else 0.0
+        self.views[frame.name] = ViewRecord(frame.name, frame.rgb, frame.depth, pred, share)
+        return {"near_steps_failed": share}
+
+    def result(self) -> dict[str, int]:
+        return {"kept": len(self.views)}
+
+
+def delta1_error(pred: np.ndarray, sensor: np.ndarray) -> np.ndarray:
+    """+1 where the prediction is DELTA1_RATIO times the sensor's depth or more, -1 where that much nearer, else 0."""
+    p = np.maximum(np.nan_to_num(pred.astype(np.float64)), 1e-6)
+    s = np.maximum(sensor.astype(np.float64), 1e-6)
+    return np.where(p / s >= DELTA1_RATIO, 1, np.where(s / p >= DELTA1_RATIO, -1, 0))
+
+
+def error_map(pred: np.ndarray, sensor: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The δ1 map as an HxWx3 image: PASS, TOO_FAR or TOO_NEAR at every pixel with a reading, black elsewhere."""
+    out = np.zeros((*sensor.shape, 3), dtype=np.uint8)
+    error = delta1_error(pred, sensor)
+    for value, colour in ((0, PASS), (1, TOO_FAR), (-1, TOO_NEAR)):
+        out[valid & (error == value)] = colour
+    return out
+
+
+def draw_view(view: ViewRecord, row: dict, depth_range: tuple[float, float]) -> np.ndarray:
+    """One row of the picture: photo | sensor depth | predicted depth | δ1 map, with a caption of its scores."""
+    valid = (view.sensor >= depth_range[0]) & (view.sensor <= depth_range[1])
+    height, width = view.sensor.shape
+    rgb = np.asarray(Image.fromarray(view.rgb).resize((width, height), Image.BILINEAR))
+    low, high = np.percentile(view.sensor[valid], [2, 98]) if valid.any() else depth_range
+    tiles = [
+        rgb,
+        colorize(np.where(valid, view.sensor, 0.0), low, high),
+        colorize(view.predicted, low, high),
+        error_map(view.predicted, view.sensor, valid),
+    ]
+    image = Image.fromarray(np.concatenate(tiles, axis=1))
+    caption = (
+        f"{view.name}: δ1 {row['delta1']:.3f}, REL {row['rel']:.3f}, sensor/predicted median "
+        f"{row['median_ratio']:.2f}, {100 * view.near_steps_failed:.0f}% of failures at depth steps; "
+        f"colours {low:.2f}-{high:.2f} m"
+    )
+    ImageDraw.Draw(image).text((6, 4), caption, fill=(255, 255, 255), stroke_width=2, stroke_fill=(0, 0, 0))
+    return np.asarray(image)
+
+
+def failure_report(run: Path, worst: int, out: Path) -> str:
+    """Score every held-out view of the fit in ``run``, write ``out/views.md`` and ``out/worst.jpg``; the table."""
+    from trainer.fit.state import FitState
+
+    state_path = run / "fit.json"
+    if not state_path.is_file():
+        raise UserError(f"{run}: no fit.json; give the --out folder of an `rgb2cloud fit`")
+    state = FitState.model_validate_json(state_path.read_text())
+    if state.published is None:
+        raise UserError(f"{run}: this fit has not published a version yet")
+    depth_range = (state.config.data.eval_min_m, state.config.data.eval_max_m)
+    frames = open_source(DataSource(format="csv", root=run / "holdout.csv"))
+    keep = KeepViews()
+    predict = load_predictor(Path(state.published))
+    result, rows, _ = evaluate_frames(
+        predict,
+        frames,
+        min_m=depth_range[0],
+        max_m=depth_range[1],
+        colour_camera=state.colour_camera,
+        diagnostics=[MedianScaled(*depth_range), keep],
+    )
+    ranked = sorted(rows, key=lambda r: r["delta1"])
+    lines = [
+        f"{predict.label} on the {len(frames)} held-out views of {state.data}, ground truth in "
+        f"[{depth_range[0]}, {depth_range[1]}] m: δ1 {result['delta1']:.3f}, REL {result['rel']:.3f}",
+        "",
+        "| view | δ1 | REL | sensor/predicted median | failures at depth steps |",
+        "|---|---|---|---|---|",
+        *(
+            f"| {r['name']} | {r['delta1']:.3f} | {r['rel']:.3f} | {r['median_ratio']:.2f} | "
+            f"{100 * r['near_steps_failed']:.0f}% |"
+            for r in ranked
+        ),
+    ]
+    table = "\n".join(lines) + "\n"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "views.md").write_text(table)
+    drawn = ranked[:worst] + ranked[-1:]  # the worst, then the best for contrast
+    picture = np.concatenate([draw_view(keep.views[r["name"]], r, depth_range) for r in drawn], axis=0)
+    Image.fromarray(picture).save(out / "worst.jpg", quality=90)
+    return table
