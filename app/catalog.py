@@ -186,6 +186,7 @@ class ModelCatalog:
                 "; ".join(
                     [f"{p} on {e}" for p, e in model.engines.items()]
                     + [f"no {p}: {why}" for p, why in model.unserved.items()]
+                    + [f"not {candidate}: {why}" for candidate, why in model.dropped.items()]
                 ),
             )
         self.on_change(self)
@@ -237,14 +238,15 @@ class ModelCatalog:
     @staticmethod
     def _serving(model: LoadedModel) -> dict[str, Any]:
         """How a loaded version runs here: each precision's engine, what auto serves, what was measured at load
-        (generator ms on the sample), how long its load's checks and measurements took, and why any precision
-        is not served."""
+        (generator ms on the sample), how long its load's checks and measurements took, why any precision
+        is not served, and why any engine was left out of a precision another engine serves."""
         return {
             "engines": dict(model.engines),
             "auto": model.auto,
             "load_s": round(model.warmup_seconds, 2),
             "measured_ms": {k: round(v, 1) for k, v in model.measured_ms.items()},
             "unserved": dict(model.unserved),
+            "dropped": dict(model.dropped),
         }
 
 

@@ -58,6 +58,9 @@ class LoadedModel:
     disagrees: set[RunPrecision] = field(default_factory=set)
     #: Generator milliseconds on the check photo of each candidate measured at load (``openvino fp32``: 41.0).
     measured_ms: dict[str, float] = field(default_factory=dict)
+    #: Why a candidate was left out where another engine serves its precision (``openvino int8``: its int8 graph
+    #: disagrees with fp32 on this machine ...): what a precision ``unserved`` would have said, per engine.
+    dropped: dict[str, str] = field(default_factory=dict)
     #: One generator call at a time: it already uses every inference thread, while the
     #: other pool workers decode and encode around it.
     lock: threading.Lock = field(default_factory=threading.Lock)
@@ -181,22 +184,26 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
     chosen: dict[RunPrecision, tuple[Engine, ExportedGenerator, float]] = {}
     disagrees: set[RunPrecision] = set()
     measured: dict[str, float] = {}
+    dropped: dict[str, str] = {}
     for precision in ("fp32", "bf16", "int8"):
         if precision not in files:
             continue
         check = (photos, references, sample)
-        passed, why = _candidates(files[precision], card, settings, precision, check, built)
+        passed, reasons = _candidates(files[precision], card, settings, precision, check, built)
         built.clear()  # the reference, where fp32 passed on it, lives on in ``passed``
         if not passed:
+            why = "; ".join(dict.fromkeys(reasons.values()))
             unserved[precision] = why
             disagrees |= {precision} if "disagrees" in why else set()
             continue
+        dropped |= {f"{engine} {precision}": why for engine, why in reasons.items()}
         timed = len(passed) > 1 or precision == "bf16"
         times, failed = _median_ms(passed, photo) if timed else (dict.fromkeys(passed, 0.0), {})
         measured |= {f"{engine} {precision}": ms for engine, ms in times.items() if timed}
         if times:
             engine = _fastest(times)
             chosen[precision] = (engine, passed[engine], times[engine])
+            dropped |= {f"{engine} {precision}": why for engine, why in failed.items()}
         else:
             unserved[precision] = "; ".join(failed.values())
         del passed  # the engines not chosen go now, not while the next precision's are checked
@@ -215,16 +222,22 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
         unserved,
         disagrees,
         measured,
+        dropped,
     )
-    for precision in model.generators:
-        depth = model.predict_depth(photo, precision)
-        if depth.shape != (card.camera.height, card.camera.width):
-            raise ModelLoadError(
-                f"{files[precision]}: warm-up returned {depth.shape} for a {card.camera.width}x{card.camera.height} "
-                "input"
-            )
+    _warm_up(model, photo, files)
     model.warmup_seconds = time.perf_counter() - start
     return model
+
+
+def _warm_up(model: LoadedModel, photo: np.ndarray, files: dict[RunPrecision, Path]) -> None:
+    """One run of each served precision at the card's camera size: its output must be that size."""
+    camera = model.card.camera
+    for precision in model.generators:
+        depth = model.predict_depth(photo, precision)
+        if depth.shape != (camera.height, camera.width):
+            raise ModelLoadError(
+                f"{files[precision]}: warm-up returned {depth.shape} for a {camera.width}x{camera.height} input"
+            )
 
 
 def _graph_files(folder: Path, card: ModelCard, engine: str) -> dict[RunPrecision, Path]:
@@ -256,8 +269,8 @@ def _candidates(
     precision: RunPrecision,
     check: tuple[list[np.ndarray], list[np.ndarray], np.ndarray | None],
     built: dict[tuple[Engine, RunPrecision], ExportedGenerator],
-) -> tuple[dict[Engine, ExportedGenerator], str]:
-    """The engines that run ``precision`` here with the same depth as fp32's, and why none does if none.
+) -> tuple[dict[Engine, ExportedGenerator], dict[Engine, str]]:
+    """The engines that run ``precision`` here with the same depth as fp32's, and why each other one does not.
 
     ``check`` is the photos (the sample at its size and at twice it), the reference fp32 depth on each,
     and the version's sample (None without one: then no reduced precision is served, since a blank photo
@@ -266,35 +279,35 @@ def _candidates(
     """
     photos, references, sample = check
     passed: dict[Engine, ExportedGenerator] = {}
-    reasons = []
+    reasons: dict[Engine, str] = {}
     engines = CANDIDATES[settings.engine]
     for engine in engines:
         if why := runs(engine, precision):
             if not (precision == "bf16" and engine != "openvino" and "openvino" in engines):  # OpenVINO's says it
-                reasons.append(why)
+                reasons[engine] = why
             continue
         if precision != "fp32" and sample is None:
-            reasons.append(f"this version ships no sample photo to check {precision} against fp32 on")
+            reasons[engine] = f"this version ships no sample photo to check {precision} against fp32 on"
             continue
         try:
             runner = built.get((engine, precision)) or _runner(engine, path, card, settings, precision)
         except ModelLoadError as e:
             if len(engines) == 1:
                 raise
-            reasons.append(str(e))  # under auto, one engine that cannot load a graph leaves the other
+            reasons[engine] = str(e)  # under auto, one engine that cannot load a graph leaves the other
             continue
         try:
             depths = [card.depth_encoding.decode(runner.predict_raw(p, once=True)) for p in photos]
         except Exception as e:
-            reasons.append(f"its {precision} run on {engine} fails on the sample: {e}")
+            reasons[engine] = f"its {precision} run on {engine} fails on the sample: {e}"
             continue
         parity = worst_agreement([depth_agreement(r, d) for r, d in zip(references, depths, strict=True)])
         if (why := disagreement(parity)) is None:
             passed[engine] = runner
         else:
             what = "graph" if precision == "int8" else "path"
-            reasons.append(f"its {precision} {what} disagrees with fp32 on this machine ({engine}): {why}")
-    return passed, "; ".join(dict.fromkeys(reasons))
+            reasons[engine] = f"its {precision} {what} disagrees with fp32 on this machine ({engine}): {why}"
+    return passed, reasons
 
 
 def _median_ms(
