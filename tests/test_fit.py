@@ -177,7 +177,7 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
         [sys.executable, "-m", "lab", "failures", str(tmp_path / "run"), "--worst", "2"],
         cwd=REPO, capture_output=True, text=True, check=True,
     )  # fmt: skip
-    views = [line.split(" | ") for line in lab.stdout.splitlines() if line.startswith("| 1000.")]
+    views = [line.split(" | ") for line in lab.stdout.splitlines() if line.startswith("| holdout/1000.")]
     assert len(views) == 5 and [float(v[1]) for v in views] == sorted(float(v[1]) for v in views)
     assert abs(np.mean([float(v[1]) for v in views]) - card.metrics[0].delta1) <= 0.001
     drawn = Image.open(tmp_path / "run" / "failures" / "worst.jpg")
