@@ -141,17 +141,6 @@ LEVERS = {
             "from-0-9-0",
             FROM_0_9_0,
         ),
-        # 8, written down before its run: with the last checkpoint published (7, now fit's default), the selection
-        # frames choose nothing, so the split keeps none apart and the train part is trained whole. The lever is
-        # fitted with the code that does so (docs/research.md names its commit); its recipe changes no setting.
-        Lever(
-            "whole-train-part",
-            "speed",
-            (),
-            "the selection frames trained on too: no part of the split kept apart for choosing a checkpoint",
-            "from-0-9-0",
-            FROM_0_9_0,
-        ),
     ]
 }
 

@@ -11,6 +11,7 @@ the photo, the sensor's depth, the model's, and where δ1 fails.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,8 @@ from trainer.config import DataSource
 from trainer.data.sources import open_source
 from trainer.evaluate import evaluate_frames, load_predictor
 
+#: Sensor depths that split a view into near (arm's length: a desk, a chair), mid (across a room) and far (metres).
+DEPTH_BANDS_M = (1.5, 3.0)
 #: δ1's threshold: a pixel fails where prediction and sensor differ by this factor or more.
 DELTA1_RATIO = 1.25
 #: The δ1 map: grey where a pixel passes, red where the model puts it too far, blue too near, black no reading.
@@ -74,6 +77,31 @@ def error_map(pred: np.ndarray, sensor: np.ndarray, valid: np.ndarray) -> np.nda
     for value, colour in ((0, PASS), (1, TOO_FAR), (-1, TOO_NEAR)):
         out[valid & (error == value)] = colour
     return out
+
+
+def failures_by_depth(views: list[ViewRecord], depth_range: tuple[float, float]) -> list[tuple[str, float, float]]:
+    """For each band of the sensor's depth: its share of the views' valid pixels, and the share of those that fail δ1.
+
+    A view whose median is right can still fail: the near range wrong while the far is right, or the other
+    way round. Pooled over ``views``, this says which depths a fit has not learnt.
+    """
+    edges = (
+        depth_range[0],
+        *(e for e in DEPTH_BANDS_M if depth_range[0] < e < depth_range[1]),
+        depth_range[1],
+    )
+    counts = np.zeros((len(edges) - 1, 2))
+    for view in views:
+        valid = (view.sensor >= depth_range[0]) & (view.sensor <= depth_range[1])
+        fails = delta1_error(view.predicted, view.sensor) != 0
+        for band, (low, high) in enumerate(pairwise(edges)):
+            inside = valid & (view.sensor >= low) & ((view.sensor < high) | (high == edges[-1]))
+            counts[band] += (inside.sum(), (inside & fails).sum())
+    total = max(counts[:, 0].sum(), 1.0)
+    return [
+        (f"{low:g}-{high:g} m", pixels / total, failed / max(pixels, 1.0))
+        for (low, high), (pixels, failed) in zip(pairwise(edges), counts, strict=True)
+    ]
 
 
 def draw_view(view: ViewRecord, row: dict, depth_range: tuple[float, float]) -> np.ndarray:
@@ -131,6 +159,21 @@ def failure_report(run: Path, worst: int, out: Path) -> str:
             f"| {r['name']} | {r['delta1']:.3f} | {r['rel']:.3f} | {r['median_ratio']:.2f} | "
             f"{100 * r['near_steps_failed']:.0f}% |"
             for r in ranked
+        ),
+    ]
+    worst_views = [keep.views[r["name"]] for r in ranked[:worst]]
+    other_views = [keep.views[r["name"]] for r in ranked[worst:]]
+    lines += [
+        "",
+        f"Where δ1 fails, by the sensor's depth: the {len(worst_views)} worst views, and the other {len(other_views)}",
+        "",
+        "| sensor depth | the worst: share of pixels | failing | the others: share of pixels | failing |",
+        "|---|---|---|---|---|",
+        *(
+            f"| {band} | {w_share:.2f} | {w_fail:.2f} | {o_share:.2f} | {o_fail:.2f} |"
+            for (band, w_share, w_fail), (_, o_share, o_fail) in zip(
+                failures_by_depth(worst_views, depth_range), failures_by_depth(other_views, depth_range), strict=True
+            )
         ),
     ]
     table = "\n".join(lines) + "\n"

@@ -105,3 +105,22 @@ def test_the_failure_map_colours_each_pixel_by_how_delta1_judges_it():
     _, rows, _ = evaluate_frames(lambda rgb, k: pred, [frame], min_m=0.1, max_m=10.0, diagnostics=[keep])
     assert rows[0]["delta1"] == 0.5 and rows[0]["near_steps_failed"] == 0.0
     assert keep.views["flat"].predicted is not None and keep.result() == {"kept": 1}
+
+
+def test_failures_by_depth_pool_the_views_pixels_into_near_mid_and_far():
+    """Counted by hand: two views, four valid pixels near, two mid, two far; the last band keeps its upper end."""
+    from lab.failures import ViewRecord, failures_by_depth
+
+    def view(sensor: list[float], pred: list[float]) -> ViewRecord:
+        return ViewRecord("v", np.zeros((1, len(sensor), 3), np.uint8), np.array([sensor]), np.array([pred]), 0.0)
+
+    views = [
+        view([1.0, 1.0, 2.0, 10.0, 0.0], [1.0, 2.0, 2.0, 5.0, 1.0]),  # near: 1 of 2 fails; mid passes; far fails
+        view([0.5, 1.4, 1.5, 3.0, 20.0], [0.5, 1.0, 1.5, 3.0, 20.0]),  # near: 1 of 2 fails (1.4 / 1.0 >= 1.25)
+    ]  # 1.5 and 3.0 open their bands; 20 m and 0 m have no reading in [0.1, 10]
+    assert failures_by_depth(views, (0.1, 10.0)) == [
+        ("0.1-1.5 m", 4 / 8, 2 / 4),
+        ("1.5-3 m", 2 / 8, 0.0),
+        ("3-10 m", 2 / 8, 1 / 2),
+    ]
+    assert [band for band, _, _ in failures_by_depth(views, (0.1, 2.0))] == ["0.1-1.5 m", "1.5-2 m"]

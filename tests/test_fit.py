@@ -180,6 +180,7 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
     views = [line.split(" | ") for line in lab.stdout.splitlines() if line.startswith("| holdout/1000.")]
     assert len(views) == 5 and [float(v[1]) for v in views] == sorted(float(v[1]) for v in views)
     assert abs(np.mean([float(v[1]) for v in views]) - card.metrics[0].delta1) <= 0.001
+    assert "by the sensor's depth: the 2 worst views, and the other 3" in lab.stdout
     drawn = Image.open(tmp_path / "run" / "failures" / "worst.jpg")
     height, width = frames[0].depth.shape
     assert drawn.size == (4 * width, 3 * height)  # photo, sensor, model, δ1 map; the two worst and the best
