@@ -196,14 +196,13 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
             unserved[precision] = why
             disagrees |= {precision} if "disagrees" in why else set()
             continue
-        dropped |= {f"{engine} {precision}": why for engine, why in reasons.items()}
         timed = len(passed) > 1 or precision == "bf16"
         times, failed = _median_ms(passed, photo) if timed else (dict.fromkeys(passed, 0.0), {})
         measured |= {f"{engine} {precision}": ms for engine, ms in times.items() if timed}
         if times:
             engine = _fastest(times)
             chosen[precision] = (engine, passed[engine], times[engine])
-            dropped |= {f"{engine} {precision}": why for engine, why in failed.items()}
+            dropped |= {f"{other} {precision}": why for other, why in (reasons | failed).items()}
         else:
             unserved[precision] = "; ".join(failed.values())
         del passed  # the engines not chosen go now, not while the next precision's are checked

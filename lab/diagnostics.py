@@ -75,6 +75,17 @@ def near_depth_steps(gt: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return valid & (highest > STEP_RATIO * lowest)
 
 
+#: δ1's threshold: a pixel fails where prediction and sensor differ by this factor or more.
+DELTA1_RATIO = 1.25
+
+
+def delta1_error(pred: np.ndarray, sensor: np.ndarray) -> np.ndarray:
+    """+1 where the prediction is DELTA1_RATIO times the sensor's depth or more, -1 where that much nearer, else 0."""
+    p = np.maximum(np.nan_to_num(pred.astype(np.float64)), 1e-6)
+    s = np.maximum(sensor.astype(np.float64), 1e-6)
+    return np.where(p / s >= DELTA1_RATIO, 1, np.where(s / p >= DELTA1_RATIO, -1, 0))
+
+
 @dataclass
 class WhereFails:
     """Pooled delta1 failures, split by whether the pixel lies near a depth step."""
@@ -90,9 +101,7 @@ class WhereFails:
         return {}
 
     def count(self, pred: np.ndarray, gt: np.ndarray, valid: np.ndarray) -> None:
-        p = np.maximum(pred.astype(np.float64), 1e-6)
-        g = np.where(valid, gt, 1.0).astype(np.float64)
-        fails = valid & (np.maximum(p / g, g / p) >= 1.25)
+        fails = valid & (delta1_error(pred, gt) != 0)
         near = near_depth_steps(gt, valid)
         self.valid += int(valid.sum())
         self.near += int(near.sum())

@@ -3,9 +3,9 @@
 A fit's card gives one δ1 over all its held-out frames. What to try next depends on which views
 fail and how: a whole view at the wrong distance (its sensor/predicted median ratio far from 1),
 wrong shapes at depth steps, or one region the recording never showed (a far corridor, a window).
-``failure_report`` scores each held-out view as the fit scored them all (the same frames, depth
-range and colour camera, from the run folder's ``fit.json``) and draws the worst beside the best:
-the photo, the sensor's depth, the model's, and where δ1 fails.
+``failure_report`` scores the published version (its fp32 ONNX) on each held-out view, with the
+frames, depth range and colour camera fit scored with (from the run folder's ``fit.json``), and
+draws the worst beside the best: the photo, the sensor's depth, the model's, and where δ1 fails.
 """
 
 from __future__ import annotations
@@ -19,23 +19,23 @@ from PIL import Image, ImageDraw
 
 from contract.colormap import colorize
 from contract.errors import UserError
-from lab.diagnostics import MedianScaled, near_depth_steps
+from contract.geometry import ColourCamera
+from lab.diagnostics import MedianScaled, delta1_error, near_depth_steps
 from recordings.frames import Frame
+from recordings.registration import sample_at_colour
 from trainer.config import DataSource
 from trainer.data.sources import open_source
 from trainer.evaluate import evaluate_frames, load_predictor
 
 #: Sensor depths that split a view into near (arm's length: a desk, a chair), mid (across a room) and far (metres).
 DEPTH_BANDS_M = (1.5, 3.0)
-#: δ1's threshold: a pixel fails where prediction and sensor differ by this factor or more.
-DELTA1_RATIO = 1.25
 #: The δ1 map: grey where a pixel passes, red where the model puts it too far, blue too near, black no reading.
 PASS, TOO_FAR, TOO_NEAR = (150, 150, 150), (220, 30, 30), (30, 80, 230)
 
 
 @dataclass
 class ViewRecord:
-    """What each scored view keeps for the drawing: the photo, the sensor's depth, the model's at its pixels."""
+    """What each scored view keeps for the drawing: the photo, the sensor's depth and the model's, on one pixel grid."""
 
     name: str
     rgb: np.ndarray
@@ -49,25 +49,29 @@ class KeepViews:
 
     name = "views"
 
-    def __init__(self) -> None:
+    def __init__(self, colour_camera: ColourCamera | None = None) -> None:
         self.views: dict[str, ViewRecord] = {}
+        self.colour_camera = colour_camera
 
     def add(self, pred: np.ndarray, frame: Frame, valid: np.ndarray) -> dict[str, float]:
         fails = valid & (delta1_error(pred, frame.depth) != 0)
         near = near_depth_steps(frame.depth, valid)
-        share = float((fails & near).sum() / fails.sum()) if fails.any() else 0.0
-        self.views[frame.name] = ViewRecord(frame.name, frame.rgb, frame.depth, pred, share)
-        return {"near_steps_failed": share}
+        at_steps = float((fails & near).sum() / fails.sum()) if fails.any() else float("nan")
+        self.views[frame.name] = ViewRecord(frame.name, self._photo_at_depth_pixels(frame), frame.depth, pred, at_steps)
+        return {"near_steps_failed": at_steps}
+
+    def _photo_at_depth_pixels(self, frame: Frame) -> np.ndarray:
+        """The photo on the depth image's grid: where the depth is not registered to colour, each depth pixel
+        shows the colour pixel that sees its point (as the evaluation reads the prediction), else black."""
+        height, width = frame.depth.shape
+        rgb = np.asarray(Image.fromarray(frame.rgb).resize((width, height), Image.BILINEAR))
+        if self.colour_camera is None:
+            return rgb
+        channels = [sample_at_colour(rgb[..., c], frame.depth, frame.intrinsics, self.colour_camera) for c in range(3)]
+        return np.clip(np.stack(channels, axis=-1).round(), 0, 255).astype(np.uint8)
 
     def result(self) -> dict[str, int]:
         return {"kept": len(self.views)}
-
-
-def delta1_error(pred: np.ndarray, sensor: np.ndarray) -> np.ndarray:
-    """+1 where the prediction is DELTA1_RATIO times the sensor's depth or more, -1 where that much nearer, else 0."""
-    p = np.maximum(np.nan_to_num(pred.astype(np.float64)), 1e-6)
-    s = np.maximum(sensor.astype(np.float64), 1e-6)
-    return np.where(p / s >= DELTA1_RATIO, 1, np.where(s / p >= DELTA1_RATIO, -1, 0))
 
 
 def error_map(pred: np.ndarray, sensor: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -81,6 +85,8 @@ def error_map(pred: np.ndarray, sensor: np.ndarray, valid: np.ndarray) -> np.nda
 
 def failures_by_depth(views: list[ViewRecord], depth_range: tuple[float, float]) -> list[tuple[str, float, float]]:
     """For each band of the sensor's depth: its share of the views' valid pixels, and the share of those that fail δ1.
+
+    NaN where there is nothing to share: no views, or no pixel in the band.
 
     A view whose median is right can still fail: the near range wrong while the far is right, or the other
     way round. Pooled over ``views``, this says which depths a fit has not learnt.
@@ -97,21 +103,29 @@ def failures_by_depth(views: list[ViewRecord], depth_range: tuple[float, float])
         for band, (low, high) in enumerate(pairwise(edges)):
             inside = valid & (view.sensor >= low) & ((view.sensor < high) | (high == edges[-1]))
             counts[band] += (inside.sum(), (inside & fails).sum())
-    total = max(counts[:, 0].sum(), 1.0)
+    total = counts[:, 0].sum()
     return [
-        (f"{low:g}-{high:g} m", pixels / total, failed / max(pixels, 1.0))
+        (f"{low:g}-{high:g} m", pixels / total if total else np.nan, failed / pixels if pixels else np.nan)
         for (low, high), (pixels, failed) in zip(pairwise(edges), counts, strict=True)
     ]
+
+
+def share(value: float) -> str:
+    """A share to two places, or a dash where there was nothing to share."""
+    return "—" if np.isnan(value) else f"{value:.2f}"
+
+
+def percent(value: float) -> str:
+    """A share as a whole percentage, or a dash where there was nothing to share."""
+    return "—" if np.isnan(value) else f"{100 * value:.0f}%"
 
 
 def draw_view(view: ViewRecord, row: dict, depth_range: tuple[float, float]) -> np.ndarray:
     """One row of the picture: photo | sensor depth | predicted depth | δ1 map, with a caption of its scores."""
     valid = (view.sensor >= depth_range[0]) & (view.sensor <= depth_range[1])
-    height, width = view.sensor.shape
-    rgb = np.asarray(Image.fromarray(view.rgb).resize((width, height), Image.BILINEAR))
     low, high = np.percentile(view.sensor[valid], [2, 98]) if valid.any() else depth_range
     tiles = [
-        rgb,
+        view.rgb,
         colorize(np.where(valid, view.sensor, 0.0), low, high),
         colorize(view.predicted, low, high),
         error_map(view.predicted, view.sensor, valid),
@@ -119,7 +133,7 @@ def draw_view(view: ViewRecord, row: dict, depth_range: tuple[float, float]) -> 
     image = Image.fromarray(np.concatenate(tiles, axis=1))
     caption = (
         f"{view.name}: δ1 {row['delta1']:.3f}, REL {row['rel']:.3f}, sensor/predicted median "
-        f"{row['median_ratio']:.2f}, {100 * view.near_steps_failed:.0f}% of failures at depth steps; "
+        f"{row['median_ratio']:.2f}, {percent(view.near_steps_failed)} of failures at depth steps; "
         f"colours {low:.2f}-{high:.2f} m"
     )
     ImageDraw.Draw(image).text((6, 4), caption, fill=(255, 255, 255), stroke_width=2, stroke_fill=(0, 0, 0))
@@ -138,7 +152,7 @@ def failure_report(run: Path, worst: int, out: Path) -> str:
         raise UserError(f"{run}: this fit has not published a version yet")
     depth_range = (state.config.data.eval_min_m, state.config.data.eval_max_m)
     frames = open_source(DataSource(format="csv", root=run / "holdout.csv"))
-    keep = KeepViews()
+    keep = KeepViews(state.colour_camera)
     predict = load_predictor(Path(state.published))
     result, rows, _ = evaluate_frames(
         predict,
@@ -157,7 +171,7 @@ def failure_report(run: Path, worst: int, out: Path) -> str:
         "|---|---|---|---|---|",
         *(
             f"| {r['name']} | {r['delta1']:.3f} | {r['rel']:.3f} | {r['median_ratio']:.2f} | "
-            f"{100 * r['near_steps_failed']:.0f}% |"
+            f"{percent(r['near_steps_failed'])} |"
             for r in ranked
         ),
     ]
@@ -170,7 +184,7 @@ def failure_report(run: Path, worst: int, out: Path) -> str:
         "| sensor depth | the worst: share of pixels | failing | the others: share of pixels | failing |",
         "|---|---|---|---|---|",
         *(
-            f"| {band} | {w_share:.2f} | {w_fail:.2f} | {o_share:.2f} | {o_fail:.2f} |"
+            f"| {band} | {share(w_share)} | {share(w_fail)} | {share(o_share)} | {share(o_fail)} |"
             for (band, w_share, w_fail), (_, o_share, o_fail) in zip(
                 failures_by_depth(worst_views, depth_range), failures_by_depth(other_views, depth_range), strict=True
             )
@@ -179,7 +193,7 @@ def failure_report(run: Path, worst: int, out: Path) -> str:
     table = "\n".join(lines) + "\n"
     out.mkdir(parents=True, exist_ok=True)
     (out / "views.md").write_text(table)
-    drawn = ranked[:worst] + ranked[-1:]  # the worst, then the best for contrast
+    drawn = ranked[:worst] + ranked[worst:][-1:]  # the worst, then the best for contrast (if not drawn already)
     picture = np.concatenate([draw_view(keep.views[r["name"]], r, depth_range) for r in drawn], axis=0)
     Image.fromarray(picture).save(out / "worst.jpg", quality=90)
     return table

@@ -91,20 +91,37 @@ def test_diagnose_prints_both_diagnostics_for_a_published_model(registry):
 
 
 def test_the_failure_map_colours_each_pixel_by_how_delta1_judges_it():
-    """Ratios 1.25 and 0.75 fail (too far, too near), 1.2 passes; no reading is black: counted by hand."""
+    """Ratios 1.25 and 1/1.25 fail (too far, too near), 1.2 and 1/1.18 pass; no reading is black: counted by hand."""
     from lab.failures import PASS, TOO_FAR, TOO_NEAR, KeepViews, error_map
 
-    sensor = np.array([[2.0, 2.0, 2.0, 2.0, 0.0]], np.float32)
-    pred = np.array([[2.0, 2.5, 1.5, 2.4, 3.0]], np.float32)  # ratios 1, 1.25, 0.75, 1.2, (no reading)
+    sensor = np.array([[2.0, 2.0, 2.5, 2.0, 2.0, 0.0]], np.float32)
+    pred = np.array([[2.0, 2.5, 2.0, 2.4, 1.7, 3.0]], np.float32)  # ratios 1, 1.25, 1/1.25, 1.2, 1/1.18, (no reading)
     valid = sensor > 0
-    expected = [[list(PASS), list(TOO_FAR), list(TOO_NEAR), list(PASS), [0, 0, 0]]]
+    expected = [[list(PASS), list(TOO_FAR), list(TOO_NEAR), list(PASS), list(PASS), [0, 0, 0]]]
     assert error_map(pred, sensor, valid).tolist() == expected
-    # Two of the four valid pixels fail, both on the flat part: none of the failures is at a depth step.
-    frame = Frame(np.zeros((1, 5, 3), np.uint8), sensor, Intrinsics(1, 1, 0, 0, 5, 1), "flat")
+    # Two of the five valid pixels fail, both on the flat part: none of the failures is at a depth step.
+    frame = Frame(np.zeros((1, 6, 3), np.uint8), sensor, Intrinsics(1, 1, 0, 0, 6, 1), "flat")
     keep = KeepViews()
     _, rows, _ = evaluate_frames(lambda rgb, k: pred, [frame], min_m=0.1, max_m=10.0, diagnostics=[keep])
-    assert rows[0]["delta1"] == 0.5 and rows[0]["near_steps_failed"] == 0.0
-    assert keep.views["flat"].predicted is not None and keep.result() == {"kept": 1}
+    assert rows[0]["delta1"] == 0.6 and rows[0]["near_steps_failed"] == 0.0 and keep.result() == {"kept": 1}
+
+
+def test_the_drawn_photo_is_read_where_each_depth_pixel_sees_it():
+    """A colour camera whose centre is one pixel to the right: depth pixel u shows colour pixel u + 1, by hand."""
+    from contract.geometry import ColourCamera
+    from lab.failures import KeepViews
+
+    ramp = np.broadcast_to((10 * np.arange(6, dtype=np.uint8))[None, :, None], (4, 6, 3)).copy()
+    depth = np.full((4, 6), 2.0, np.float32)
+    depth[0, 0] = 0.0  # no reading: nothing to look up
+    frame = Frame(ramp, depth, Intrinsics(10, 10, 2.5, 1.5, 6, 4), "shifted")
+    keep = KeepViews(ColourCamera(fx=10, fy=10, cx=3.5, cy=1.5))
+    keep.add(depth, frame, depth > 0)
+    photo = keep.views["shifted"].rgb[..., 0]
+    assert photo[1].tolist() == [10, 20, 30, 40, 50, 0]  # the last pixel's point is beyond the photo: black
+    assert photo[0, 0] == 0 and photo[0, 1:].tolist() == [20, 30, 40, 50, 0]
+    # No pixel fails, so no share of failures at depth steps: NaN, which the table prints as a dash.
+    assert np.isnan(KeepViews().add(depth, frame, depth > 0)["near_steps_failed"])
 
 
 def test_failures_by_depth_pool_the_views_pixels_into_near_mid_and_far():
@@ -124,3 +141,4 @@ def test_failures_by_depth_pool_the_views_pixels_into_near_mid_and_far():
         ("3-10 m", 2 / 8, 1 / 2),
     ]
     assert [band for band, _, _ in failures_by_depth(views, (0.1, 2.0))] == ["0.1-1.5 m", "1.5-2 m"]
+    assert all(np.isnan(share) and np.isnan(failing) for _, share, failing in failures_by_depth([], (0.1, 10.0)))

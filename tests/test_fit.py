@@ -172,7 +172,7 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
         listed = httpx.get(f"{service.url}/v1/models", timeout=10).json()["models"][0]["versions"][0]["card"]
         assert [d["licence"] for d in listed["data"]] == [d.licence for d in card.training.data]
     assert json.loads((tmp_path / "run" / "fit.json").read_text())["start_from"] == str(start)
-    # Where it fails: each held-out view scored again as fit scored them (their mean is the card's), the worst drawn.
+    # Where it fails: the published ONNX scored on each held-out view (their mean is the card's), the worst drawn.
     lab = subprocess.run(
         [sys.executable, "-m", "lab", "failures", str(tmp_path / "run"), "--worst", "2"],
         cwd=REPO, capture_output=True, text=True, check=True,
