@@ -26,6 +26,7 @@ from recordings.registration import sample_at_colour
 from trainer.config import DataSource
 from trainer.data.sources import open_source
 from trainer.evaluate import evaluate_frames, load_predictor
+from trainer.metrics import valid_mask
 
 #: Sensor depths that split a view into near (arm's length: a desk, a chair), mid (across a room) and far (metres).
 DEPTH_BANDS_M = (1.5, 3.0)
@@ -98,7 +99,7 @@ def failures_by_depth(views: list[ViewRecord], depth_range: tuple[float, float])
     )
     counts = np.zeros((len(edges) - 1, 2))
     for view in views:
-        valid = (view.sensor >= depth_range[0]) & (view.sensor <= depth_range[1])
+        valid = valid_mask(view.sensor, *depth_range)
         fails = delta1_error(view.predicted, view.sensor) != 0
         for band, (low, high) in enumerate(pairwise(edges)):
             inside = valid & (view.sensor >= low) & ((view.sensor < high) | (high == edges[-1]))
@@ -122,7 +123,7 @@ def percent(value: float) -> str:
 
 def draw_view(view: ViewRecord, row: dict, depth_range: tuple[float, float]) -> np.ndarray:
     """One row of the picture: photo | sensor depth | predicted depth | δ1 map, with a caption of its scores."""
-    valid = (view.sensor >= depth_range[0]) & (view.sensor <= depth_range[1])
+    valid = valid_mask(view.sensor, *depth_range)
     low, high = np.percentile(view.sensor[valid], [2, 98]) if valid.any() else depth_range
     tiles = [
         view.rgb,
