@@ -11,8 +11,10 @@ from __future__ import annotations
 import io
 import itertools
 import shutil
+import threading
 from pathlib import Path
 
+import httpx
 import numpy as np
 import pytest
 from conftest import REPO, SEVEN_SCENES, TUM_FRAME
@@ -157,7 +159,9 @@ def test_the_api_message_is_shown_for_a_file_that_is_not_an_image(browser, servi
 
 
 def test_a_busy_service_is_retried_after_retry_after(browser):
-    # One request at a time and no queue: the page's two calls collide, and one gets 503 until the other is done.
+    # One request at a time and no queue. Two clients of ours keep the one place taken until the page has been
+    # told it is busy (its own two calls collide only where inference is slower than their arrival, so a fast
+    # CPU would decide the test), then stop: the page's retry after Retry-After gets in.
     with running_service(
         bundled_registry=BUNDLED_REGISTRY, model="rgb2cloud-7scenes", threads="2", workers="1", max_queue="0"
     ) as busy:
@@ -167,7 +171,23 @@ def test_a_busy_service_is_retried_after_retry_after(browser):
             new MutationObserver(() => window.said.push(document.getElementById('status').textContent))
               .observe(document.getElementById('status'), {childList: true, characterData: true, subtree: true}); }"""
         )
-        page.set_input_files("#photo", PHOTO)
+        told = threading.Event()
+
+        def occupy() -> None:
+            with httpx.Client(base_url=busy.url, timeout=30) as client:
+                while not told.is_set():
+                    client.post("/depth", files={"image": PHOTO.read_bytes()})  # a 503 is as good: keep trying
+
+        occupiers = [threading.Thread(target=occupy) for _ in range(2)]
+        for thread in occupiers:
+            thread.start()
+        try:
+            page.set_input_files("#photo", PHOTO)
+            page.wait_for_function("window.said.some((line) => line.includes('busy'))", timeout=30_000)
+        finally:
+            told.set()
+            for thread in occupiers:
+                thread.join()
         wait_done(page)
         said = page.evaluate("window.said")
         assert any("busy" in line and "trying again in 1 s" in line for line in said), said
