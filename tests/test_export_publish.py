@@ -10,7 +10,7 @@ from datetime import UTC, datetime
 import numpy as np
 import onnx
 import pytest
-from conftest import REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, export_args, run_cli
+from conftest import FLOAT32_METRICS, REPO, SEVEN_SCENES, TUM_FRAME, evaluate_cli, export_args, run_cli
 from PIL import Image
 
 from contract.card import (
@@ -89,7 +89,10 @@ def test_a_published_version_runs_and_publishes_again_with_other_inference_setti
         json.loads((tmp_path / name / "metrics.json").read_text())["metrics"]
         for name in ("eval-source", "eval-checkpoint")
     )
-    assert from_source == from_checkpoint  # the same weights, run the same way
+    # The same weights, run the same way, in two processes: not bit for bit (a CI machine gave REL
+    # 0.36057048 against 0.36057079), but within float32's agreement; the same frames and pixels exactly.
+    assert from_source == pytest.approx(from_checkpoint, **FLOAT32_METRICS)
+    assert (from_source["images"], from_source["pixels"]) == (from_checkpoint["images"], from_checkpoint["pixels"])
     plain = json.loads((out / "metrics.json").read_text())["metrics"]
     assert from_source["rel"] != plain["rel"]
 
