@@ -128,11 +128,30 @@ class TransformConfig(Strict):
     saturation: float = Field(0.2, ge=0)
 
 
+class RenderedViews(Strict):
+    """Train frames seen from nearby cameras through their own depth (``trainer/data/views.py``).
+
+    Distances are shares of each frame's median depth; angles are degrees, each drawn uniformly
+    in plus or minus its bound.
+    """
+
+    share: float = Field(
+        0.0, ge=0.0, le=1.0, description="the share of each batch's samples drawn from rendered views; 0: none"
+    )
+    per_frame: int = Field(3, ge=1, description="views rendered (once, before training) of each train frame")
+    forward: float = Field(0.45, ge=0.0, lt=1.0, description="the farthest move toward the scene")
+    back: float = Field(0.15, ge=0.0, description="the farthest move away from it")
+    sideways: float = Field(0.10, ge=0.0, description="the farthest move left, right, up or down")
+    turn_deg: float = Field(8.0, ge=0.0, le=45.0, description="the largest yaw and pitch")
+    roll_deg: float = Field(4.0, ge=0.0, le=45.0, description="the largest roll")
+
+
 class DataConfig(Strict):
     train: list[DataSource]
     val: list[DataSource] = Field(default_factory=list)
     val_scale: float = Field(0.5, gt=0, le=1, description="validation images are resized by this")
     transform: TransformConfig = TransformConfig()
+    views: RenderedViews = RenderedViews()
     eval_min_m: float = Field(0.1, gt=0, description="metrics use ground truth in [eval_min_m, eval_max_m]")
     eval_max_m: float = Field(10.0, gt=0)
 

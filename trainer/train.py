@@ -41,6 +41,7 @@ from trainer.checkpoint import (
 from trainer.config import RunConfig, complete_config
 from trainer.data.dataset import ConcatFrames, StepBatchSampler, TrainingSet
 from trainer.data.sources import open_source
+from trainer.data.views import view_bank
 from trainer.devices import (
     Distributed,
     hardware_description,
@@ -112,6 +113,15 @@ def training_loader(config: RunConfig, ddp: Distributed, start_step: int, pin_me
     """This rank's batches from ``start_step`` on, each rebuilt from the step number alone."""
     frames = ConcatFrames([reader for s in config.data.train for reader in [open_source(s)] * s.repeat])
     settings = config.train
+    views = config.data.views
+    bank = None
+    if views.share > 0:  # rank 0 renders the bank; the others read what it made
+        if ddp.rank == 0:
+            bank = view_bank(frames, views, settings.seed, settings.out_dir / "views")
+        if ddp.world_size > 1:
+            dist.barrier()
+        if ddp.rank != 0:
+            bank = view_bank(frames, views, settings.seed, settings.out_dir / "views")
     dataset = TrainingSet(
         frames,
         config.data.transform,
@@ -119,6 +129,8 @@ def training_loader(config: RunConfig, ddp: Distributed, start_step: int, pin_me
         settings.seed,
         settings.batch_size,
         config.generator.core_multiple,
+        bank,
+        views.share,
     )
     sampler = StepBatchSampler(len(frames), settings.batch_size, settings.seed, ddp.rank, ddp.world_size, start_step)
     return DataLoader(

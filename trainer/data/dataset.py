@@ -20,6 +20,7 @@ from contract.codec import DepthEncoding
 from recordings.frames import Frame, FrameReader
 from trainer.config import TransformConfig
 from trainer.data.transforms import apply_params, crop_size, sample_params
+from trainer.data.views import ViewBank
 
 
 def frame_to_tensors(frame: Frame, encoding: DepthEncoding) -> dict[str, torch.Tensor]:
@@ -52,7 +53,9 @@ class TrainingSet(Dataset):
     """Indexed by (frame index, global position): augments with an RNG seeded by both.
 
     The crop size is drawn once per batch (position // batch_size names one rank's batch of
-    one step), so a batch of mixed-extent views stacks into one tensor.
+    one step), so a batch of mixed-extent views stacks into one tensor. With a bank of rendered
+    views, a ``view_share`` of the samples is one of the frame's rendered views instead of the
+    frame, drawn from the same (seed, position), and transformed as a frame would be.
     """
 
     def __init__(
@@ -63,16 +66,23 @@ class TrainingSet(Dataset):
         seed: int,
         batch_size: int,
         multiple: int,
+        views: ViewBank | None = None,
+        view_share: float = 0.0,
     ):
         self.frames, self.transform, self.encoding, self.seed = frames, transform, encoding, seed
         self.batch_size, self.multiple = batch_size, multiple
+        self.views, self.view_share = views, view_share
 
     def __len__(self) -> int:
         return len(self.frames)
 
     def __getitem__(self, key: tuple[int, int]) -> dict[str, torch.Tensor]:
         index, position = key
-        frame = self.frames[index]
+        pick = np.random.default_rng([self.seed, position, 2])
+        if self.views is not None and pick.random() < self.view_share:
+            frame = self.views.view(index, int(pick.integers(self.views.per_frame)))
+        else:
+            frame = self.frames[index]
         batch_rng = np.random.default_rng([self.seed, position // self.batch_size, 1])
         crop = crop_size(batch_rng, self.transform, self.multiple)
         rng = np.random.default_rng([self.seed, position])
