@@ -44,6 +44,25 @@ class Sending:
     camera: dict[str, float] | None
 
 
+@dataclass(frozen=True)
+class Unreadable:
+    """A photo the client cannot open to fit it to the stream: its frame's name, and why in a few words."""
+
+    name: str
+    why: str
+
+
+def unreadable_reason(error: Exception) -> str:
+    """Why Pillow could not open a photo, as the one line that names it says it."""
+    from PIL import Image, UnidentifiedImageError
+
+    if isinstance(error, UnidentifiedImageError):
+        return "not an image Pillow can read"
+    if isinstance(error, Image.DecompressionBombError):
+        return f"over Pillow's decompression-bomb limit of {2 * Image.MAX_IMAGE_PIXELS:,} pixels"
+    return f"cannot be read ({error})"
+
+
 def stream_options(first: Sending, given: dict[str, Any]) -> dict[str, Any]:
     """The stream's query: both outputs, raw float depth and raw points, and the first frame's camera (each
     later frame's is sent as it changes)."""
@@ -61,7 +80,17 @@ class Fitting:
     def __init__(self, max_pixels: int, given: dict[str, float], say: Any):
         self.max_pixels, self.given, self.say, self.said = max_pixels, given, say, False
 
-    def __call__(self, frame: Any) -> Sending:
+    def __call__(self, frame: Any) -> Sending | Unreadable:
+        """The frame as it goes out, or why it cannot: a photo that is no image, is cut off where it must be
+        decoded here (to be resized), or is over Pillow's decompression-bomb limit."""
+        from PIL import Image
+
+        try:
+            return self._fitted(frame)
+        except (OSError, ValueError, Image.DecompressionBombError) as e:  # OSError: unidentified or truncated
+            return Unreadable(frame.name, unreadable_reason(e))
+
+    def _fitted(self, frame: Any) -> Sending:
         import dataclasses
         import io
 
@@ -125,12 +154,15 @@ def run_stream(
     given: dict[str, Any],
     given_camera: dict[str, float],
     max_pixels: int,
+    tally: Tally,
     rate: float = 0.0,
     skip_written: Any = None,
-) -> Tally:
-    """Every frame through one stream into every sink (``clients.sinks``), and what became of the frames.
-    ``given_camera`` is the user's camera for a source whose frames carry none, in its frames' pixels;
-    ``rate`` paces a recording (``paced``); ``skip_written`` leaves out frames a folder holds already."""
+) -> None:
+    """Every frame through one stream into every sink (``clients.sinks``); ``tally`` counts what became of the
+    frames, also when the stream ends in an error. ``given_camera`` is the user's camera for a source whose
+    frames carry none, in its frames' pixels; ``rate`` paces a recording (``paced``); ``skip_written`` leaves
+    out frames a folder holds already. A photo the client cannot open is one line that names it, and the
+    stream goes on with the next."""
     from tqdm import tqdm
     from websockets.exceptions import InvalidHandshake
 
@@ -144,11 +176,21 @@ def run_stream(
     def say(line: str) -> None:
         tqdm.write(line, file=sys.stderr)
 
-    sending = map(Fitting(max_pixels, given_camera, say), frames)
+    fitting = Fitting(max_pixels, given_camera, say)
+
+    def readable(frames: Iterable[Any]) -> Iterator[Sending]:
+        for frame in frames:
+            fitted = fitting(frame)
+            if isinstance(fitted, Unreadable):
+                tally.unreadable += 1
+                say(f"{fitted.name}: skipped, {fitted.why}")
+            else:
+                yield fitted
+
+    sending = readable(frames)
     first = next(sending, None)
-    tally = Tally()
     if first is None:
-        return tally
+        return
     sending = itertools.chain([first], sending)
     bar = tqdm(desc="stream", unit="frame", mininterval=1.0)
     started = time.perf_counter()
@@ -169,26 +211,37 @@ def run_stream(
                 writer.put(answer)
                 rate = writer.written / max(1e-9, time.perf_counter() - started)
                 bar.set_postfix(fps=f"{rate:.1f}", skipped=answer.header["skipped"], refresh=False)
-    finally:
-        writer.finish()
+    finally:  # the bar closed and every answer counted whatever ends the stream
+        failure = writer.finish()
         bar.close()
         tally.written = writer.written
-    return tally
+        if failure is not None:
+            if sys.exc_info()[1] is None:
+                raise failure
+            say(f"also, an output failed: {failure}")  # the error on its way up is the one the user sees
 
 
 @dataclass
 class Tally:
     """What became of a stream's frames: written to every sink, refused by the service (its words said per
-    frame), and sent again after a 503 (the service was busy), whether or not they then came back."""
+    frame), skipped as photos the client could not open (each named as it was), and sent again after a 503
+    (the service was busy), whether or not they then came back."""
 
     written: int = 0
     refused: int = 0
+    unreadable: int = 0
     sent_again: int = 0
+
+    @property
+    def skipped(self) -> int:
+        return self.refused + self.unreadable
 
     def summary(self) -> str:
         said = [f"{self.written} frames written"]
         if self.refused:
-            said.append(f"{self.refused} refused")
+            said.append(f"{self.refused} refused by the service")
+        if self.unreadable:
+            said.append(f"{self.unreadable} skipped as unreadable")
         if self.sent_again:
             said.append(f"{self.sent_again} sent again while the service was busy")
         return ", ".join(said)
@@ -224,11 +277,12 @@ class Writer:
             raise self._failure
         self._queue.put(answer)
 
-    def finish(self) -> None:
+    def finish(self) -> BaseException | None:
+        """Writes what is queued and stops; the failure that stopped the writing, if any, for the caller to
+        raise or, where an error is already on its way up, to report beside it."""
         self._queue.put(None)
         self._thread.join()
-        if self._failure is not None:
-            raise self._failure
+        return self._failure
 
 
 #: Why a source's own depth cannot go beside the model's.
@@ -344,22 +398,29 @@ def stream(
         messages = RosMessages(Topics(namespace), found.frame_id, with_colour, with_sensor_depth, tf_parent)
         folder = FolderSink(out, pointcloud) if out is not None else None
         sinks: list[Any] = [] if folder is None else [folder]
+        tally: Tally | None = None
         try:
             open_live_sinks(sinks, bag, ros2_domain, foxglove, messages)
             skip_written = folder if folder is not None and len(sinks) == 1 and not overwrite else None
             live = ros2 or foxglove is not None
             pace = rate if rate is not None else (1.0 if live else 0.0)
-            typer.echo(f"streaming {source} ({found.description}) to {url or service_url()}", err=True)
-            tally = run_stream(found, url or service_url(), sinks, given, given_camera, max_pixels, pace, skip_written)
+            target = url or service_url()
+            typer.echo(f"streaming {source} ({found.description}) to {target}", err=True)
+            tally = Tally()
+            run_stream(found, target, sinks, given, given_camera, max_pixels, tally, pace, skip_written)
         except (StreamRefused, ConnectionClosed) as e:
             raise UserError(f"the stream ended: {e}") from None
         except KeyboardInterrupt:
             typer.echo("stopped (Ctrl-C): what was written is complete", err=True)
             raise typer.Exit(130) from None
         finally:
-            close_all(sinks, lambda line: typer.echo(line, err=True))
-    typer.echo(tally.summary() + "".join(sink.shortfall() for sink in sinks if hasattr(sink, "shortfall")))
-    if tally.refused:
+            try:
+                close_all(sinks, lambda line: typer.echo(line, err=True))
+            finally:  # what became of the frames, however the stream ended (a sink's shortfall once it closed)
+                if tally is not None:
+                    shortfall = "".join(sink.shortfall() for sink in sinks if hasattr(sink, "shortfall"))
+                    typer.echo(tally.summary() + shortfall)
+    if tally is not None and tally.skipped:
         raise typer.Exit(1)
 
 

@@ -11,10 +11,12 @@ import io
 import math
 import os
 import signal
+import struct
 import subprocess
 import sys
 import threading
 import time
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -471,3 +473,80 @@ def test_every_output_is_closed_and_a_failure_to_close_never_hides_the_error_on_
         finally:
             close_all(sinks, said.append)
     assert all(sink.closed for sink in sinks) and said == ["also, an output failed to close: disk full"]
+
+
+def png_header(width: int, height: int) -> bytes:
+    """A PNG of which only the header is written: Pillow reads its size, and refuses a bomb, on opening it."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IEND", b"")
+
+
+def test_unreadable_photos_are_named_and_skipped_and_the_stream_goes_on(service, tmp_path):
+    folder, out = tmp_path / "photos", tmp_path / "out"
+    folder.mkdir()
+    good = [KITCHEN[i].read_bytes() for i in range(4)]
+    (folder / "shot-0.jpg").write_bytes(good[0])
+    (folder / "shot-1.jpg").write_bytes(np.random.default_rng(0).bytes(5000))  # random bytes named .jpg
+    (folder / "shot-2.jpg").write_bytes(good[1])
+    (folder / "shot-3.png").write_bytes(png_header(20_000, 20_000))  # 400 MP: over the bomb limit
+    (folder / "shot-4.jpg").write_bytes(good[2])
+    (folder / "shot-5.jpg").write_bytes(good[3][: len(good[3]) // 2])  # cut off halfway
+    result = stream_cli(service, str(folder), "--out", str(out), check=False)
+    assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr
+    assert "shot-1: skipped, not an image Pillow can read" in result.stderr
+    assert "shot-3: skipped, over Pillow's decompression-bomb limit of" in result.stderr
+    # The client sends a photo it need not resize as it is: the service decodes it, and refuses the cut one.
+    assert "shot-5: 400: " in result.stderr
+    assert (
+        result.stdout.strip().splitlines()[-1] == "3 frames written, 1 refused by the service, 2 skipped as unreadable"
+    )
+    assert sorted(p.name for p in out.glob("*.depth.png")) == [f"shot-{i}.depth.png" for i in (0, 2, 4)]
+
+
+class FailingSink:
+    """A sink whose every write fails, as a full disk would fail it."""
+
+    def write(self, frame) -> None:
+        raise OSError("no space left on device")
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("stream_breaks", [False, True])
+def test_a_writer_failure_never_replaces_the_error_on_its_way_up(monkeypatch, capsys, stream_breaks):
+    """One answer is written (and fails); then the stream ends, or breaks. A break is what is raised, the
+    writer's failure said beside it; an end raises the writer's failure. Either way every answer is counted."""
+    from websockets.exceptions import ConnectionClosedError
+
+    import clients.stream as client
+    from cli.stream import Tally, run_stream
+    from recordings.sources import Source, SourceFrame
+
+    class Socket:
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *error):
+            return False
+
+    def one_answer(socket, sending, encode, live, options_of=None):
+        item = next(iter(sending))
+        yield client.Answer(item, {"type": "frame", "skipped": 0, "payloads": []}, {})
+        if stream_breaks:
+            raise ConnectionClosedError(None, None)
+
+    monkeypatch.setattr(client, "open_stream", lambda url, **options: Socket())
+    monkeypatch.setattr(client, "answers", one_answer)
+    frames = iter([SourceFrame("shot-0", 0, KITCHEN[0].read_bytes())])
+    tally = Tally()
+    expected = ConnectionClosedError if stream_breaks else OSError
+    with pytest.raises(expected):
+        run_stream(Source(frames, live=False), "http://127.0.0.1:9", [FailingSink()], {}, {}, 10**8, tally)
+    said = capsys.readouterr().err
+    assert ("also, an output failed: no space left on device" in said) == stream_breaks
+    assert tally.written == 0 and tally.summary() == "0 frames written"
