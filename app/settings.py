@@ -10,6 +10,7 @@ from typing import Literal
 from pydantic import Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from contract.encodings import STREAM_MAX_PIXELS
 from contract.registries import checkout_weights, default_registry
 from contract.resample import INFERENCE_MAX_PIXELS
 from contract.runtime import RunPrecision
@@ -110,7 +111,7 @@ class Settings(BaseSettings):
         8 * 1024 * 1024, ge=1, description="a larger stream frame gets an error of its own; the stream goes on"
     )
     stream_max_pixels: int = Field(
-        3840 * 2160, ge=1, description="a stream frame's decoded width x height limit (4K UHD by default)"
+        STREAM_MAX_PIXELS, ge=1, description="a stream frame's decoded width x height limit (4K UHD by default)"
     )
     stream_idle_s: float = Field(30, gt=0, description="a stream that sends nothing for this long is closed (1001)")
     stream_send_timeout_s: float = Field(

@@ -170,11 +170,12 @@ def streamed_to(
     rate: float = 0.0,
 ) -> Streamed:
     """``rgb2cloud stream``'s loop from ``recording`` (``frames`` of it) to one output, and how it went."""
-    from cli.stream import STREAM_MAX_PIXELS, close_all, paced, run_stream
+    from cli.stream import Tally, close_all, paced, run_stream
     from clients.sinks.bag import BagSink
     from clients.sinks.foxglove import FoxgloveSink
     from clients.sinks.ros2 import Ros2Sink
     from clients.sinks.ros_messages import RosMessages, Topics
+    from contract.encodings import STREAM_MAX_PIXELS
     from harness.ros2_subscriber import Subscription, fresh_domain
     from recordings.formats import ReadOptions
     from recordings.sources import stream_source
@@ -203,9 +204,10 @@ def streamed_to(
 
     started, cpu_started = time.monotonic(), time.process_time()
     try:
-        written = run_stream(
-            replace(source, frames=let_go(source.frames)), url, sinks, {"stride": stride}, {}, STREAM_MAX_PIXELS
-        ).written
+        tally = Tally()
+        paced_source = replace(source, frames=let_go(source.frames))
+        run_stream(paced_source, url, sinks, {"stride": stride}, {}, STREAM_MAX_PIXELS, tally)
+        written = tally.written
     finally:
         try:
             close_all(sinks, print)

@@ -22,17 +22,13 @@ from typing import Annotated, Any
 
 import typer
 
+from contract.encodings import STREAM_MAX_PIXELS
 from contract.errors import UserError
 
 CAMERA_HELP = (
     "{}, pixels: a recording's in its own pixels, as fit takes it (its camera is overridden, then scaled to "
     "each photo sent); a camera's, video's or photos' in their frames' pixels"
 )
-
-
-#: The service's default limit on a stream frame's pixels (RGB2CLOUD_STREAM_MAX_PIXELS): larger photos are
-#: resized to fit before they are sent, their camera with them.
-STREAM_MAX_PIXELS = 3840 * 2160
 
 
 @dataclass(frozen=True)
@@ -195,7 +191,7 @@ def run_stream(
     bar = tqdm(desc="stream", unit="frame", mininterval=1.0)
     started = time.perf_counter()
     try:
-        socket = open_stream(url, **stream_options(first, given))
+        socket = open_stream(url, max_pixels=max_pixels, **stream_options(first, given))
     except InvalidHandshake as e:
         raise UserError(f"{url}: the service refused the stream: {e}") from None
     writer = Writer(sinks)

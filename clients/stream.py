@@ -19,6 +19,8 @@ import numpy as np
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
+from contract.encodings import MESSAGE_BYTES_PER_PIXEL, STREAM_MAX_PIXELS
+
 T = TypeVar("T")
 #: How long one payload of an answer may take to arrive once its header has: a full-resolution cloud is
 #: 4.6 MB, seconds on a slow link.
@@ -31,12 +33,14 @@ def stream_url(service_url: str, **options: Any) -> str:
     return service_url.replace("http://", "ws://", 1) + "/v1/stream" + (f"?{query}" if query else "")
 
 
-def open_stream(service_url: str, origin: str | None = None, **options: Any) -> ClientConnection:
-    """A stream, with no compression (as browsers' frames are JPEG anyway) and no message size limit."""
+def open_stream(
+    service_url: str, origin: str | None = None, max_pixels: int = STREAM_MAX_PIXELS, **options: Any
+) -> ClientConnection:
+    """A stream, with no compression (as browsers' frames are JPEG anyway), that accepts messages as large as an
+    answer to a photo of ``max_pixels`` can be and no larger: a wrong URL cannot fill the client's memory."""
     headers = {"Origin": origin} if origin else None
-    return connect(
-        stream_url(service_url, **options), max_size=None, compression=None, additional_headers=headers, open_timeout=30
-    )
+    url, limit = stream_url(service_url, **options), MESSAGE_BYTES_PER_PIXEL * max_pixels
+    return connect(url, max_size=limit, compression=None, additional_headers=headers, open_timeout=30)
 
 
 def receive(socket: ClientConnection, timeout: float | None = 120) -> tuple[dict[str, Any], list[bytes]]:

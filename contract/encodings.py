@@ -17,6 +17,11 @@ from contract.geometry import POINT
 
 #: Light compression: deflate is most of a PNG's encode time.
 PNG_COMPRESS_LEVEL = 1
+#: The service's default limit on a stream frame's pixels (RGB2CLOUD_STREAM_MAX_PIXELS): 4K UHD.
+STREAM_MAX_PIXELS = 3840 * 2160
+#: The most bytes one message of a stream answer takes per pixel of the photo: a raw or PLY cloud with a point
+#: for every pixel (a ``POINT`` each; raw32 depth is 4 bytes a pixel, the JSON header far less), rounded up.
+MESSAGE_BYTES_PER_PIXEL = POINT.itemsize + 1
 
 
 def png_chunk(kind: bytes, data: bytes) -> bytes:

@@ -17,10 +17,10 @@ BUNDLED_0_9_0 = REPO / "weights" / "rgb2cloud-7scenes" / "0.9.0"
 
 
 def refuse_torchscript(monkeypatch) -> None:
-    """Stand in for a torch other than the writer's: every TorchScript file fails as a missing operator does."""
+    """Stand in for torch 2.11: every TorchScript file fails as 0.9.0's does there, on an operator 2.11 lacks."""
 
     def cannot(*args, **kwargs):
-        raise RuntimeError("Unknown builtin op: aten::_upsample_bilinear2d_aa.\nCould not find any similar ops")
+        raise RuntimeError("Unknown builtin op: aten::_upsample_lanczos2d_aa.\nCould not find any similar ops")
 
     monkeypatch.setattr(torch.jit, "load", cannot)
 
@@ -51,5 +51,5 @@ def test_an_older_version_another_torch_cannot_read_is_refused_in_one_line_that_
     message = str(refused.value)
     assert "\n" not in message
     assert f"written by torch 2.13.0+cpu, which torch {torch.__version__} cannot load" in message
-    assert "Unknown builtin op: aten::_upsample_bilinear2d_aa." in message
+    assert "Unknown builtin op: aten::_upsample_lanczos2d_aa." in message
     assert "install torch==2.13.0 to start from it" in message and WEIGHTS_FILE in message

@@ -550,3 +550,24 @@ def test_a_writer_failure_never_replaces_the_error_on_its_way_up(monkeypatch, ca
     said = capsys.readouterr().err
     assert ("also, an output failed: no space left on device" in said) == stream_breaks
     assert tally.written == 0 and tally.summary() == "0 frames written"
+
+
+def test_the_stream_client_refuses_a_message_larger_than_an_answer_can_be():
+    """A URL that is no rgb2cloud stream cannot fill the client's memory: a message over what an answer to a
+    photo of ``max_pixels`` holds (a point cloud of 15 bytes a pixel) closes the connection (1009)."""
+    from websockets.exceptions import ConnectionClosedError
+    from websockets.sync.server import serve
+
+    def flood(socket) -> None:
+        socket.send(b"\0" * (16 * 100))  # as large as an answer to 100 pixels may be
+        socket.send(b"\0" * (16 * 100 + 1))
+        socket.recv()
+
+    with serve(flood, "127.0.0.1", 0) as server:
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        url = f"http://127.0.0.1:{server.socket.getsockname()[1]}"
+        with open_stream(url, max_pixels=100) as socket:
+            assert len(socket.recv(timeout=10)) == 1600
+            with pytest.raises(ConnectionClosedError) as closed:
+                socket.recv(timeout=10)
+        assert closed.value.sent.code == 1009  # "message too big"

@@ -1,4 +1,4 @@
-"""Where a stream's answers go. Every sink takes the same ``Answer`` (one frame's depth, points and camera,
+"""Where a stream's answers go. Every sink takes the same ``DecodedFrame`` (one frame's depth, points and camera,
 decoded once) and has ``write`` and ``close``; a new output is one small module beside these:
 
 - ``folder``: NAME.depth.png (16-bit mm, byte for byte ``/depth``'s) and NAME.ply;
@@ -18,7 +18,7 @@ from contract.geometry import Intrinsics
 
 
 @dataclass
-class Answer:
+class DecodedFrame:
     """One frame's answer, decoded: depth in metres (0 where none), the points and their colours, and the
     camera the depth was inferred with; ``frame`` is the source's (``recordings.sources.SourceFrame``)."""
 
@@ -47,17 +47,17 @@ class Answer:
         return self.frame.sensor_metres()
 
 
-def decoded(frame: Any, header: dict[str, Any], payloads: dict[str, bytes]) -> Answer:
-    """A stream answer (raw32 depth and raw points, as ``rgb2cloud stream`` asks for) as an ``Answer``."""
+def decoded(frame: Any, header: dict[str, Any], payloads: dict[str, bytes]) -> DecodedFrame:
+    """A stream answer (raw32 depth and raw points, as ``rgb2cloud stream`` asks for) as a ``DecodedFrame``."""
     from clients.stream import raw_depth, raw_points
 
     entries = {entry["kind"]: entry for entry in header["payloads"]}
     xyz, rgb = raw_points(entries["pointcloud"], payloads["pointcloud"])
     metres = raw_depth(entries["depth"], payloads["depth"])
-    return Answer(frame, Intrinsics(**header["intrinsics"]), metres, xyz, rgb)
+    return DecodedFrame(frame, Intrinsics(**header["intrinsics"]), metres, xyz, rgb)
 
 
 class Sink(Protocol):
-    def write(self, answer: Answer) -> None: ...
+    def write(self, answer: DecodedFrame) -> None: ...
 
     def close(self) -> None: ...

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from clients.sinks import Answer
+from clients.sinks import DecodedFrame
 from clients.sinks.ros_messages import TF_STATIC, Message, RosMessages
 from contract.errors import UserError
 
@@ -41,7 +41,7 @@ class BagSink:
         self._connections: dict[str, Any] = {}
         self.frames = 0
 
-    def write(self, answer: Answer) -> None:
+    def write(self, answer: DecodedFrame) -> None:
         if self.frames == 0 and (static := self.messages.static(answer.stamp_ns)) is not None:
             self._write(static)
         for message in self.messages(answer):

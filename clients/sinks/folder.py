@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clients.sinks import Answer
+from clients.sinks import DecodedFrame
 
 
 class FolderSink:
@@ -19,7 +19,7 @@ class FolderSink:
         """The files a frame called ``name`` is written to (all present: it was written)."""
         return [self.out / f"{name}.depth.png", *([self.out / f"{name}.ply"] if self.pointcloud else [])]
 
-    def write(self, answer: Answer) -> None:
+    def write(self, answer: DecodedFrame) -> None:
         from contract.encodings import encode_depth_png, encode_ply
         from contract.geometry import POINT
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from clients.sinks import Answer
+from clients.sinks import DecodedFrame
 from clients.sinks.ros_messages import TF_STATIC, Message, RosMessages
 from contract.errors import UserError
 
@@ -66,7 +66,7 @@ class FoxgloveSink:
         """The port it serves on (the one the system gave, for port 0)."""
         return self.server.port
 
-    def write(self, answer: Answer) -> None:
+    def write(self, answer: DecodedFrame) -> None:
         latched = []
         if not self.channels:
             self.static = self.messages.static(answer.stamp_ns)  # stamped with the first frame, as tf2's is

@@ -24,7 +24,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from clients.sinks import Answer
+from clients.sinks import DecodedFrame
 from clients.sinks.ros_messages import TF_STATIC, Message, RosMessages
 from contract.errors import UserError
 
@@ -134,7 +134,7 @@ class Ros2Sink:
         self.unacknowledged: list[str] = []
         self._sent_static = False
 
-    def write(self, answer: Answer) -> None:
+    def write(self, answer: DecodedFrame) -> None:
         if not self._sent_static:
             self._sent_static = True
             if (static := self.messages.static(answer.stamp_ns)) is not None:

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from clients.sinks import Answer
+from clients.sinks import DecodedFrame
 from contract.errors import UserError
 from contract.geometry import Intrinsics
 
@@ -143,7 +143,7 @@ class RosMessages:
         """The type's ``ros2msg`` text, its dependencies after it (what MCAP and Foxglove take as its schema)."""
         return self.store.generate_msgdef(msgtype, ros_version=2)[0]
 
-    def __call__(self, answer: Answer) -> Iterator[Message]:
+    def __call__(self, answer: DecodedFrame) -> Iterator[Message]:
         stamp, k, topics = answer.stamp_ns, answer.camera, self.topics
         yield self._message(topics["depth"], IMAGE, stamp, self._depth(stamp, answer.metres))
         yield self._message(topics["depth_info"], CAMERA_INFO, stamp, self._info(stamp, k))
