@@ -67,8 +67,10 @@ def main() -> None:
         # A stream frame up to this size is read and, if over the stream's own limit, answered with an error
         # of its own; only beyond it does the WebSocket layer close the stream (1009).
         ws_max_size=STREAM_TRANSPORT_FACTOR * settings.stream_max_frame_bytes,
-        # Messages read ahead of the stream: each may be ws_max_size, so this bounds what one client can queue.
-        ws_max_queue=settings.stream_read_ahead,
+        # This WebSocket protocol stops reading a connection after each whole message until the stream has taken
+        # it: with ws_max_size, that bounds what one client can make the service hold (docs/api.md). Named, not
+        # "auto", so the bound does not depend on which WebSocket library happens to be installed.
+        ws="websockets-sansio",
         # Frames are JPEG or PNG and answers PNG or raw depth: deflating them again costs both ends more
         # time than it saves on a network.
         ws_per_message_deflate=False,

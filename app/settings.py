@@ -120,13 +120,6 @@ class Settings(BaseSettings):
         description="a stream whose client takes no answer for this long (it stopped reading) is closed (1008): "
         "the service never holds more than one unsent answer for it",
     )
-    stream_read_ahead: int = Field(
-        2,
-        ge=1,
-        le=32,
-        description="messages the WebSocket layer reads ahead of a stream (uvicorn's ws_max_queue); with the "
-        "message size limit it bounds what a client can make the service hold (docs/api.md)",
-    )
 
     @model_validator(mode="after")
     def _coherent(self) -> Settings:
