@@ -184,7 +184,10 @@ class ModelCatalog:
                 model.label,
                 model.warmup_seconds,
                 "; ".join(
-                    [f"{p} on {e}" for p, e in model.engines.items()]
+                    [
+                        f"{p} on {e}" + (f" ({model.chosen[p]})" if p in model.chosen else "")
+                        for p, e in model.engines.items()
+                    ]
                     + [f"no {p}: {why}" for p, why in model.unserved.items()]
                     + [f"not {candidate}: {why}" for candidate, why in model.dropped.items()]
                 ),
@@ -237,14 +240,17 @@ class ModelCatalog:
 
     @staticmethod
     def _serving(model: LoadedModel) -> dict[str, Any]:
-        """How a loaded version runs here: each precision's engine, what auto serves, what was measured at load
-        (generator ms on the sample), how long its load's checks and measurements took, why any precision
-        is not served, and why any engine was left out of a precision another engine serves."""
+        """How a loaded version runs here: each precision's engine and why it won, what auto serves, what was
+        measured at load (generator ms on the sample: the median, and the fastest and slowest run), how long its
+        load's checks and measurements took, why any precision is not served, and why any engine was left out of
+        a precision another engine serves."""
         return {
             "engines": dict(model.engines),
+            "chosen": dict(model.chosen),
             "auto": model.auto,
             "load_s": round(model.warmup_seconds, 2),
-            "measured_ms": {k: round(v, 1) for k, v in model.measured_ms.items()},
+            "measured_ms": {k: round(v.median, 1) for k, v in model.measured.items()},
+            "measured_range_ms": {k: [round(min(v.runs), 1), round(max(v.runs), 1)] for k, v in model.measured.items()},
             "unserved": dict(model.unserved),
             "dropped": dict(model.dropped),
         }

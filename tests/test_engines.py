@@ -130,9 +130,13 @@ def test_auto_measures_both_engines_at_load_and_says_what_it_chose(reference):
             why = dropped.get(f"{engine} int8", "not listed")
             assert f"{engine} int8" in ms or served or "disagrees with fp32" in why, serving
             assert not (served and f"{engine} int8" in dropped)
-        # OpenVINO replaces ONNX Runtime only when it measured MARGIN faster at load (app.loading._fastest).
-        fastest = "openvino" if ms["openvino fp32"] < ms["onnxruntime fp32"] * (1 - MARGIN) else "onnxruntime"
-        assert serving["engines"]["fp32"] == fastest, ms
+        # OpenVINO replaces ONNX Runtime only when every one of its timed runs at load was faster than every one
+        # of ONNX Runtime's, and its median by MARGIN (app.loading._fastest): the load log and /v1/models say so.
+        spans = serving["measured_range_ms"]
+        beyond = spans["openvino fp32"][1] < spans["onnxruntime fp32"][0]
+        clear = beyond and ms["openvino fp32"] <= ms["onnxruntime fp32"] * (1 - MARGIN)
+        assert serving["engines"]["fp32"] == ("openvino" if clear else "onnxruntime"), serving
+        assert serving["chosen"]["fp32"].startswith(serving["engines"]["fp32"]), serving["chosen"]
         if not bf16_units():
             assert serving["unserved"]["bf16"] == NO_BF16 and version["card"]["precisions"] == ["fp32", "int8"]
             asked = httpx.post(
@@ -246,7 +250,7 @@ def test_a_bf16_path_slower_than_fp32_is_refused_and_a_faster_one_is_auto(monkey
     model = load_version(VERSION, Settings(bundled_registry=BUNDLED, engine="openvino", threads=2))
     # The same arithmetic as fp32 here, so "faster" is a coin toss: either way the rule is kept, on the two
     # times /v1/models shows.
-    faster = model.measured_ms["openvino bf16"] < model.measured_ms["openvino fp32"]
+    faster = model.measured["openvino bf16"].median < model.measured["openvino fp32"].median
     assert ("bf16" in model.generators) == (model.auto == "bf16") == faster
 
 
@@ -287,10 +291,50 @@ def test_openvino_s_output_is_its_own_array_not_the_request_s_buffer():
     assert not np.shares_memory(first, second) and np.array_equal(first, kept) and not np.array_equal(first, second)
 
 
-def test_auto_keeps_onnx_runtime_unless_another_engine_is_clearly_faster():
-    from app.loading import _fastest
+def test_auto_keeps_onnx_runtime_unless_another_engine_is_faster_beyond_the_noise():
+    from app.loading import Timing, _fastest
 
-    assert _fastest({"onnxruntime": 70.0, "openvino": 70.0 * (1 - MARGIN / 2)}) == "onnxruntime"
-    assert _fastest({"onnxruntime": 70.0, "openvino": 50.0}) == "openvino"
-    assert _fastest({"onnxruntime": 70.0, "openvino": 90.0}) == "onnxruntime"
-    assert _fastest({"openvino": 90.0}) == "openvino"
+    def timing(*runs: float) -> Timing:
+        return Timing(runs)
+
+    # The AVX2 EPYC's near-equals (issue 69): OpenVINO's median 6% lower, but its runs overlap ONNX Runtime's.
+    engine, why = _fastest({"onnxruntime": timing(79, 84, 78, 80, 86), "openvino": timing(74, 80, 73, 75, 79)})
+    assert engine == "onnxruntime" and "openvino 75.0 ms (73.0-80.0) is not faster in every run" in why
+    # Faster in every run, by more than MARGIN: served, with its margin.
+    engine, why = _fastest({"onnxruntime": timing(79, 84, 78, 80, 86), "openvino": timing(60, 62, 61, 63, 60)})
+    assert (
+        engine == "openvino"
+        and why == "openvino 61.0 ms (60.0-63.0), 24% faster than onnxruntime 80.0 ms (78.0-86.0) in every run"
+    )
+    # Faster in every run but by less than MARGIN: a steady machine, a gap too small to be worth a second engine.
+    engine, _ = _fastest(
+        {"onnxruntime": timing(70, 70.5, 71, 70.2, 70.8), "openvino": timing(68, 68.5, 69, 68.2, 68.8)}
+    )
+    assert engine == "onnxruntime"
+    assert _fastest({"onnxruntime": timing(70, 71), "openvino": timing(90, 91)})[0] == "onnxruntime"
+    assert _fastest({"openvino": timing(90, 91), "torchscript": timing(95, 99)})[0] == "openvino"
+
+
+def test_each_candidate_is_timed_after_a_warm_up_on_its_own_runs():
+    """``_timings`` with a fake clock: each runner's scripted durations, the warm-up left out."""
+    from app.loading import TIMED_RUNS, _timings
+
+    now = [0.0]
+
+    class Scripted:
+        def __init__(self, seconds: list[float]):
+            self.seconds = iter(seconds)
+
+        def predict_raw(self, photo):
+            now[0] += next(self.seconds)
+
+    class Broken:
+        def predict_raw(self, photo):
+            raise RuntimeError("no kernel for this CPU")
+
+    runs = [0.080 + i / 1000 for i in range(TIMED_RUNS)]
+    times, failed = _timings(
+        {"onnxruntime": Scripted([5.0, *runs]), "openvino": Broken()}, np.zeros((4, 4, 3), np.uint8), lambda: now[0]
+    )
+    assert times["onnxruntime"].runs == pytest.approx([r * 1000 for r in runs])  # the 5 s warm-up is not a run
+    assert failed == {"openvino": "its run on openvino failed while timed: no kernel for this CPU"}
