@@ -80,10 +80,20 @@ def breaks_a_bound(engine: str, precision: str) -> bool:
     return False
 
 
+def twin_serves(engine: str, precision: str) -> bool:
+    """Whether the other engine serves ``precision`` of the bundled version on this CPU, loaded as the service
+    loads it on that engine alone."""
+    twin = {"onnxruntime": "openvino", "openvino": "onnxruntime"}[engine]
+    if runs(twin, precision):
+        return False
+    return precision in load_version(VERSION, Settings(bundled_registry=BUNDLED, engine=twin, threads=2)).generators
+
+
 @pytest.mark.parametrize(("engine", "precision", "why"), PATHS, ids=[f"{e}-{p}" for e, p, _ in PATHS])
 def test_each_engine_and_precision_serves_depth_at_odd_sizes_that_agrees_with_fp32(reference, engine, precision, why):
     """Each path that runs here serves fp32's depth, or, asked for by name, is refused with a 409 that says why;
-    a refusal only where its depth really breaks a bound (OpenVINO's int8 on an Intel Xeon with AMX does)."""
+    a refusal only where its depth really breaks a bound (OpenVINO's int8 on an Intel Xeon with AMX does) and
+    the other engine serves that precision here: a precision the card ships is never refused everywhere."""
     if why:
         pytest.skip(why)
     with running_service(bundled_registry=str(BUNDLED), model=MODEL, engine=engine, threads="2") as service:
@@ -97,6 +107,7 @@ def test_each_engine_and_precision_serves_depth_at_odd_sizes_that_agrees_with_fp
             if r.status_code == 409 and precision != "fp32":
                 assert "disagrees with fp32 on this machine" in r.json()["detail"], r.text
                 assert breaks_a_bound(engine, precision), r.text
+                assert twin_serves(engine, precision), f"{precision} is refused on both engines: {r.text}"
                 return
             assert r.status_code == 200, r.text
             assert (r.headers["x-engine"], r.headers["x-precision"]) == (engine, precision)
@@ -107,6 +118,16 @@ def test_each_engine_and_precision_serves_depth_at_odd_sizes_that_agrees_with_fp
                 assert np.abs(depth - truth).max() <= 2, (engine, size)
             else:
                 assert disagreement(depth_agreement(truth, depth)) is None, (engine, precision, size)
+
+
+def test_every_precision_the_card_promises_is_served_by_some_engine_here():
+    """int8 is served on every CPU, and bf16 wherever the CPU has bf16 units unless it measured slower than fp32
+    (never because its depth disagrees): a quantisation broken on every engine fails here, whatever the 409s say."""
+    model = load_version(VERSION, Settings(bundled_registry=BUNDLED, threads=2))
+    assert "int8" in model.generators, model.unserved
+    if bf16_units():
+        assert "bf16" in model.generators or "slower, so not served" in model.unserved["bf16"], model.unserved
+        assert "bf16" not in model.disagrees
 
 
 def test_auto_measures_both_engines_at_load_and_says_what_it_chose(reference):
