@@ -1,16 +1,17 @@
 """How good a fit gets in how many minutes: each development site, each budget, each starting point.
 
-    python bench/fit_sites.py [--budgets 5 10 20 30] [--starts default rooms 0.8.0 scratch]
+    python bench/fit_sites.py [--budgets 5 10 20 30] [--starts default 0.9.0 rooms 0.8.0]
                               [--sites aims-lab mosd-tabletop]
                               [--markdown docs/fit-benchmark.md] [--curve docs/fit-benchmark.png]
 
 Each cell is one ``rgb2cloud fit`` run in its own process, on this machine, with the
 site's held-out frames scored once at its end (δ1, REL, point-cloud RMSE), beside the
 starting model zero-shot and the best image-free baseline from the same run's card.
-The ``default`` start is what ``fit`` starts from without ``--from`` (the bundled base), with fit's
-default recipe. No site is one its starting model saw: the bundled versions saw only 7-Scenes RedKitchen, and
-the ``rooms`` start is, for each site, ``bench/rooms-base.yaml`` trained without
-that site (leave one site out; trained and published once, then reused for every budget).
+The ``default`` start is what ``fit`` starts from without ``--from`` (ImageNet's Lite0 under a fresh U-Net
+decoder), with fit's default recipe; ``0.9.0`` and ``0.8.0`` are the bundled kitchen models. No site is one its
+starting model saw: the bundled versions saw only 7-Scenes RedKitchen, and the ``rooms`` start is, for each
+site, ``bench/rooms-base.yaml`` trained without that site (leave one site out; trained and published once, then
+reused for every budget).
 Runs and their published versions go to ``runs/bench-fit/``.
 """
 
@@ -24,8 +25,8 @@ from pathlib import Path
 
 from harness.fitting import DATA, REPO, SITES
 
-STARTS = ("default", "rooms", "0.8.0", "scratch")
-BUNDLED = REPO / "weights" / "rgb2cloud-7scenes" / "0.8.0"
+STARTS = ("default", "0.9.0", "rooms", "0.8.0")
+BUNDLED = REPO / "weights" / "rgb2cloud-7scenes"
 ROOMS_CONFIG = REPO / "bench" / "rooms-base.yaml"
 SEVEN_SCENES = DATA / "7scenes-redkitchen"
 OUT = REPO / "runs" / "bench-fit"
@@ -64,7 +65,7 @@ def start_options(site: str, start: str) -> list[str]:
     """``fit``'s ``--from`` for a start: none for fit's default."""
     if start == "default":
         return []
-    return ["--from", str(rooms_without(site)) if start == "rooms" else str(BUNDLED) if start == "0.8.0" else start]
+    return ["--from", str(rooms_without(site)) if start == "rooms" else str(BUNDLED / start)]
 
 
 def fit_once(site: str, start: str, budget: float) -> tuple[dict, float]:

@@ -1,6 +1,7 @@
 """Stream benchmark: live depth over ``/v1/stream`` against back-to-back POST /depth, in one run.
 
     python bench/stream.py [--seconds 20] [--soak-frames 5000] [--threads 2]
+    python bench/stream.py --models rgb2cloud-7scenes:0.9.0 my-room [--registry DIR]   # models side by side
 
 One service (the bundled default, ONNX Runtime fp32) on 127.0.0.1 answers every row; the client runs
 on the same machine. Frames are the 7-Scenes RedKitchen test frames 850-999, 640x480 JPEGs, cycled.
@@ -8,6 +9,8 @@ on the same machine. Frames are the 7-Scenes RedKitchen test frames 850-999, 640
 the next frame when the last is answered. Latency is from a frame's send to its answer's last byte.
 The per-frame work is the service's own decode + inference + encode (the stages each header reports).
 The flicker table plays frames 850-999 in order as a stream (``harness.flicker``, docs/quality.md).
+``--models`` compares models instead (a fitted site model against the one it would replace): one service
+serves them all, and each answers a lockstep row and a camera row, in two rounds in opposite orders.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import statistics
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TypeVar
 
 import httpx
@@ -275,9 +279,14 @@ def main() -> None:
     parser.add_argument("--soak-frames", type=int, default=5000, help="frames sent while RSS is watched")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--outputs-only", action="store_true", help="only the rows streaming a recording to outputs")
+    parser.add_argument("--models", nargs="+", help="compare these models (NAME or NAME:VERSION) instead")
+    parser.add_argument("--registry", type=Path, help="where the --models not bundled are published")
     args = parser.parse_args()
     frames = jpegs()
     count = int(args.seconds * args.fps)
+    if args.models:
+        model_rows(args, frames, count)
+        return
     env = {"bundled_registry": BUNDLED_REGISTRY, "model": "rgb2cloud-7scenes", "engine": "onnxruntime"}
     with running_service(threads=str(args.threads), precision="fp32", **env) as service:
         url = service.url
@@ -300,6 +309,29 @@ def main() -> None:
     print("|---|---|---|---|---|")
     print("\n".join(flicker))
     print(f"\n{outputs}")
+
+
+def model_rows(args: argparse.Namespace, frames: list[bytes], count: int) -> None:
+    """Each model's lockstep and camera rows from one service, in two rounds (A B, then B A) so that a machine
+    growing busier or quieter shows as a difference between rounds, not between models."""
+    env = {"bundled_registry": BUNDLED_REGISTRY, "model": args.models[0], "engine": "onnxruntime"}
+    env |= {"max_loaded": str(len(args.models))} | ({"registry": str(args.registry)} if args.registry else {})
+    print(f"Machine: {cpu_description()}; service threads {args.threads}; ONNX Runtime fp32; frames 640x480 JPEG\n")
+    print("| round | model | lockstep answers/s | p50 ms | p95 ms | generator ms | camera answers/s | p95 ms |")
+    print("|---|---|---|---|---|---|---|---|")
+    with running_service(threads=str(args.threads), precision="fp32", **env) as service:
+        url = service.url
+        for model in args.models:
+            lockstep(url, frames[:10], 2, model=model)  # loaded and warm before any row is timed
+        for round_, order in enumerate((args.models, args.models[::-1]), 1):
+            for model in order:
+                step = closed(url, lockstep(url, frames, args.seconds, model=model))
+                cam = closed(url, camera(url, frames, args.fps, count, model=model))
+                print(
+                    f"| {round_} | {model} | {step.fps:.1f} | {step.percentile(50):.0f} | {step.percentile(95):.0f} | "
+                    f"{statistics.median(step.inference):.0f} | {cam.fps:.1f} | {cam.percentile(95):.0f} |",
+                    flush=True,
+                )
 
 
 def report(args: argparse.Namespace, post_run: Run, step_run: Run, png_run: Run, raw_run: Run, four: list[Run]):

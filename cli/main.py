@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from cli.stream import stream
+from contract.card import IMAGENET_START
 from recordings.frames import DEFAULT_MAX_FRAMES  # numpy and PIL only: the serving install has them
 
 if TYPE_CHECKING:
@@ -163,8 +164,13 @@ def export(
 
 # fit's longer options, named here so that the command reads as its list of options.
 FitFrom = Annotated[
-    str | None,
-    typer.Option("--from", help="a published version folder to start from, or 'scratch' (default: the bundled base)"),
+    str,
+    typer.Option(
+        "--from",
+        help="where the generator starts: 'imagenet' (ImageNet's EfficientNet-Lite0 under a fresh U-Net decoder, "
+        "the encoder frozen), a published version folder, or NAME[:VERSION] of a model in the registries, such "
+        "as the bundled kitchen model rgb2cloud-7scenes",
+    ),
 ]
 FitFormat = Annotated[
     str | None,
@@ -203,7 +209,7 @@ def fit(
     name: Annotated[str, typer.Option(help="the model's name in the registry")],
     licence: Annotated[str, typer.Option(help="the terms the recording may be used under (required)")],
     budget: Annotated[float, typer.Option(help="minutes, wall clock, for the whole command", min=1)] = 30.0,
-    from_: FitFrom = None,
+    from_: FitFrom = IMAGENET_START,
     registry: Annotated[Path | None, typer.Option(help=REGISTRY_HELP)] = None,
     format: FitFormat = None,
     fx: Annotated[float | None, typer.Option(help="focal length x in pixels (overrides intrinsics.json)")] = None,

@@ -124,6 +124,10 @@ class Metrics(BaseModel):
         )
 
 
+#: A fit's start when it begins from no trained generator: ImageNet's encoder under a fresh decoder (fit's default).
+IMAGENET_START = "imagenet"
+
+
 class FitRecord(BaseModel):
     """How ``rgb2cloud fit`` made a model of one place."""
 
@@ -131,7 +135,10 @@ class FitRecord(BaseModel):
         None, description="the fit's own id (its fit.json's): which run published this version, wherever it ran"
     )
     data: str = Field(description="the recording's path as given")
-    start_from: str = Field(description="the published version whose generator it started from, or 'scratch'")
+    start_from: str = Field(
+        description="the published version whose generator it started from, or 'imagenet' (a fresh decoder on "
+        "ImageNet's encoder; 'scratch' in cards before it was fit's default)"
+    )
     start_model: str | None = Field(None, description="that version's NAME VERSION, from its card")
     budget_min: float
     split: dict[str, Any] = Field(description="train, selection, gap and held-out parts: frames, first, last")

@@ -186,6 +186,51 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
     assert drawn.size == (4 * width, 3 * height)  # photo, sensor, model, δ1 map; the two worst and the best
 
 
+@pytest.mark.slow
+def test_fit_starts_from_imagenet_by_default_and_renders_views_into_its_budget(registry, tmp_path):
+    """No --from: ImageNet's Lite0 under a fresh U-Net decoder, the encoder frozen; views rendered before the plan."""
+    from trainer.efficientnet import imagenet_state
+
+    data = write_recording(tmp_path / "rec", 24, open3d=False)
+    args = fit_args(data, tmp_path, registry / "tiny" / "0.1.0")
+    at = args.index("--from")
+    views = ["--set", "data.views.share=0.5", "--set", "data.views.per_frame=2"]
+    args = [*args[:at], *args[at + 2 :], "--steps", "4", *views]
+    result = run_cli(*args)
+    phases = list(dict.fromkeys(line.split(":")[0] for line in result.stderr.splitlines() if "%|" in line))
+    assert phases[:3] == ["inspecting", "rendering views", "measuring"], result.stderr
+    assert "rendered views: 32 of 16 train frames in" in result.stdout and "50% of each batch" in result.stdout
+    bank = tmp_path / "run" / "train" / "views"
+    assert len(list(bank.glob("*.color.png"))) == 32 and len(list(bank.glob("*.depth.png"))) == 32
+    card = load_card(tmp_path / "registry" / "my-room" / "0.1.0")
+    assert card.training.fit.start_from == "imagenet" and card.training.fit.start_model is None
+    assert card.generator.encoder == "efficientnet-lite0"
+    config = card.training.config
+    assert config["optim"]["encoder_lr_scale"] == 0 and config["data"]["views"]["share"] == 0.5
+    assert config["data"]["views"]["forward"] == 0.45  # the card records every rendering setting
+    assert card.training.data[-1].name.startswith("ImageNet ILSVRC-2012")  # the encoder's lineage
+    # Frozen: the published encoder is ImageNet's, weights and BatchNorm statistics.
+    weights = load_generator_weights(tmp_path / "registry" / "my-room" / "0.1.0", card.generator)
+    imagenet = imagenet_state()
+    for key in ("_conv_stem.weight", "_blocks.15._bn2.running_var"):
+        assert torch.equal(weights[f"encoder.{key}"], imagenet[key])
+
+
+def test_from_names_a_folder_a_registry_model_or_imagenet(registry, tmp_path):
+    from contract.errors import UserError
+    from contract.registries import Registries
+    from trainer.fit.workflow import resolve_start
+
+    registries = Registries(tmp_path / "own", registry)
+    assert resolve_start("imagenet", registries) is None
+    assert resolve_start(str(registry / "tiny" / "0.1.0"), registries) == registry / "tiny" / "0.1.0"
+    assert resolve_start("tiny", registries) == registry / "tiny" / "0.1.0"
+    assert resolve_start("tiny:0.1.0", registries) == registry / "tiny" / "0.1.0"
+    for wrong in ("tiny:0.2.0", "nothing", "scratch"):
+        with pytest.raises(UserError, match=f"--from {wrong}: no such version folder or model .*'imagenet'"):
+            resolve_start(wrong, registries)
+
+
 #: ``rgb2cloud ARGS`` whose process sends itself SIGINT (Ctrl-C) after the first training step that
 #: follows its first checkpoint: the interruption lands mid-training on any machine, however fast or
 #: loaded. The test fixes the plan with ``--steps 40`` (a checkpoint every 4, a tenth of the steps), so

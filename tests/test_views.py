@@ -77,7 +77,7 @@ def test_a_box_moved_sideways_shifts_by_its_parallax_and_the_nearer_surface_wins
     # The camera 0.1 m to the right: a point at depth z moves left by f * 0.1 / z pixels,
     # 5 for the box (1 m) and 5/3 for the wall (3 m).
     view, landed = render_view(scene(box_on_wall()), Motion(np.eye(3), np.array([0.1, 0.0, 0.0])))
-    cols, rows = source_of(view)
+    cols, _ = source_of(view)
     # The box's face: columns 26-37 land on 21-32, at 1 m, though wall points from columns 23-34 land there too.
     assert np.all(view.depth[18:30, 21:33] == 1.0)
     assert np.array_equal(cols[18:30, 21:33], np.tile(np.arange(26, 38), (12, 1)))

@@ -41,7 +41,7 @@ from trainer.checkpoint import (
 from trainer.config import RunConfig, complete_config
 from trainer.data.dataset import ConcatFrames, StepBatchSampler, TrainingSet
 from trainer.data.sources import open_source
-from trainer.data.views import view_bank
+from trainer.data.views import ViewBank, view_bank
 from trainer.devices import (
     Distributed,
     hardware_description,
@@ -109,19 +109,30 @@ def train(
             leave_process_group()
 
 
+def training_frames(config: RunConfig) -> ConcatFrames:
+    """The run's train frames: every train source, each as many times as its ``repeat``."""
+    return ConcatFrames([reader for s in config.data.train for reader in [open_source(s)] * s.repeat])
+
+
+def training_views(config: RunConfig, frames: ConcatFrames, ddp: Distributed | None = None) -> ViewBank | None:
+    """The run's bank of rendered views (``data.views``) in ``out_dir/views``, made or found there; None if unused.
+
+    Under torchrun rank 0 renders it and the other ranks read what it made.
+    """
+    views, settings = config.data.views, config.train
+    if views.share == 0:
+        return None
+    ddp = ddp or Distributed()
+    bank = view_bank(frames, views, settings.seed, Path(settings.out_dir) / "views") if ddp.rank == 0 else None
+    if ddp.world_size > 1:
+        dist.barrier()
+    return bank or view_bank(frames, views, settings.seed, Path(settings.out_dir) / "views")
+
+
 def training_loader(config: RunConfig, ddp: Distributed, start_step: int, pin_memory: bool) -> DataLoader:
     """This rank's batches from ``start_step`` on, each rebuilt from the step number alone."""
-    frames = ConcatFrames([reader for s in config.data.train for reader in [open_source(s)] * s.repeat])
+    frames = training_frames(config)
     settings = config.train
-    views = config.data.views
-    bank = None
-    if views.share > 0:  # rank 0 renders the bank; the others read what it made
-        if ddp.rank == 0:
-            bank = view_bank(frames, views, settings.seed, settings.out_dir / "views")
-        if ddp.world_size > 1:
-            dist.barrier()
-        if ddp.rank != 0:
-            bank = view_bank(frames, views, settings.seed, settings.out_dir / "views")
     dataset = TrainingSet(
         frames,
         config.data.transform,
@@ -129,8 +140,8 @@ def training_loader(config: RunConfig, ddp: Distributed, start_step: int, pin_me
         settings.seed,
         settings.batch_size,
         config.generator.core_multiple,
-        bank,
-        views.share,
+        training_views(config, frames, ddp),
+        config.data.views.share,
     )
     sampler = StepBatchSampler(len(frames), settings.batch_size, settings.seed, ddp.rank, ddp.world_size, start_step)
     return DataLoader(

@@ -78,10 +78,12 @@ class TrainingSet(Dataset):
 
     def __getitem__(self, key: tuple[int, int]) -> dict[str, torch.Tensor]:
         index, position = key
-        pick = np.random.default_rng([self.seed, position, 2])
-        if self.views is not None and pick.random() < self.view_share:
-            frame = self.views.view(index, int(pick.integers(self.views.per_frame)))
-        else:
+        frame = None
+        if self.views is not None:
+            pick = np.random.default_rng([self.seed, position, 2])
+            if pick.random() < self.view_share:
+                frame = self.views.view(index, int(pick.integers(self.views.per_frame)))
+        if frame is None:
             frame = self.frames[index]
         batch_rng = np.random.default_rng([self.seed, position // self.batch_size, 1])
         crop = crop_size(batch_rng, self.transform, self.multiple)

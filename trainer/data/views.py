@@ -155,7 +155,7 @@ def view_rng(seed: int, frame_index: int, view: int) -> np.random.Generator:
 
 @dataclass(frozen=True)
 class ViewBank:
-    """The rendered views of every train frame, ``per_frame`` each: view ``j`` of frame ``i`` is ``[i * per_frame + j]``."""
+    """The rendered views of the train frames, ``per_frame`` each: view ``j`` of frame ``i`` is ``view(i, j)``."""
 
     reader: FrameReader
     per_frame: int

@@ -9,10 +9,14 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
-from contract.card import CardError, list_versions, load_card
+from contract.card import IMAGENET_START, CardError, list_versions, load_card
 from contract.geometry import ColourCamera
 from trainer.config import RunConfig
 from trainer.fit.budget import Plan
+
+#: ``start_from`` of a fit that started from no trained generator: 'imagenet', or 'scratch' in a fit.json written
+#: before the ImageNet start was fit's default.
+NO_TRAINED_START = (IMAGENET_START, "scratch")
 
 
 class FitState(BaseModel):
@@ -26,7 +30,7 @@ class FitState(BaseModel):
     data: str
     format: str
     licence: str
-    start_from: str = Field(description="the published version folder training starts from, or 'scratch'")
+    start_from: str = Field(description="the published version folder training starts from, or 'imagenet'")
     split: dict[str, dict[str, Any]] = Field(description="Split.summary: each part's frames, first and last")
     colour_camera: ColourCamera | None
     plan: Plan
@@ -36,7 +40,7 @@ class FitState(BaseModel):
 
     @property
     def start(self) -> Path | None:
-        return None if self.start_from == "scratch" else Path(self.start_from)
+        return None if self.start_from in NO_TRAINED_START else Path(self.start_from)
 
 
 def new_fit_id() -> str:
