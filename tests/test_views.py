@@ -153,3 +153,24 @@ def test_the_bank_is_made_once_and_found_again(tmp_path) -> None:
     assert np.array_equal(view.rgb, rendered.rgb)
     # Other settings render a new bank.
     assert view_bank(frames, settings.model_copy(update={"forward": 0.3}), 0, tmp_path).render_ms > 0
+
+
+def test_a_view_rendered_at_a_share_of_its_frame_trains_at_the_frame_s_pixels(tmp_path):
+    """A bank rendered at half the frames' size (twice the transform's largest scale, 0.25) is zoomed by twice
+    as much: a still view's training sample is the frame's own, at the same size, depth and camera."""
+    from contract.codec import DepthEncoding
+    from trainer.config import TransformConfig
+    from trainer.data.dataset import TrainingSet
+    from trainer.data.views import render_scale
+
+    frames = [scene(box_on_wall())]
+    still = RenderedViews(share=1.0, per_frame=1, forward=0, back=0, sideways=0, turn_deg=0, roll_deg=0)
+    transform = TransformConfig(size=(12, 16), scale=(0.25, 0.25), flip=False, brightness=0, contrast=0, saturation=0)
+    assert render_scale(transform) == 0.5
+    bank = view_bank(frames, still, 0, tmp_path, render_scale(transform))
+    assert bank.view(0, 0).depth.shape == (24, 32) and bank.view(0, 0).intrinsics == CAMERA.resized(32, 24)
+    encoding = DepthEncoding(min_m=0.25, max_m=10.0)
+    with_views = TrainingSet(frames, transform, encoding, 0, 1, 4, bank, 1.0)[0, 0]
+    without = TrainingSet(frames, transform, encoding, 0, 1, 4)[0, 0]
+    assert with_views["metres"].shape == without["metres"].shape == (1, 12, 16)
+    assert (with_views["metres"] == without["metres"]).float().mean() >= 0.9  # nearest twice, against once

@@ -41,7 +41,7 @@ from trainer.checkpoint import (
 from trainer.config import RunConfig, complete_config
 from trainer.data.dataset import ConcatFrames, StepBatchSampler, TrainingSet
 from trainer.data.sources import open_source
-from trainer.data.views import ViewBank, view_bank
+from trainer.data.views import ViewBank, render_scale, view_bank
 from trainer.devices import (
     Distributed,
     hardware_description,
@@ -123,10 +123,11 @@ def training_views(config: RunConfig, frames: ConcatFrames, ddp: Distributed | N
     if views.share == 0:
         return None
     ddp = ddp or Distributed()
-    bank = view_bank(frames, views, settings.seed, Path(settings.out_dir) / "views") if ddp.rank == 0 else None
+    folder, scale = Path(settings.out_dir) / "views", render_scale(config.data.transform)
+    bank = view_bank(frames, views, settings.seed, folder, scale) if ddp.rank == 0 else None
     if ddp.world_size > 1:
         dist.barrier()
-    return bank or view_bank(frames, views, settings.seed, Path(settings.out_dir) / "views")
+    return bank or view_bank(frames, views, settings.seed, folder, scale)
 
 
 def training_loader(config: RunConfig, ddp: Distributed, start_step: int, pin_memory: bool) -> DataLoader:

@@ -72,23 +72,29 @@ class TrainingSet(Dataset):
         self.frames, self.transform, self.encoding, self.seed = frames, transform, encoding, seed
         self.batch_size, self.multiple = batch_size, multiple
         self.views, self.view_share = views, view_share
+        # A view stored at a share of its frame's size is zoomed by as much more, to the same pixels as the frame.
+        self.view_transform = transform
+        if views is not None and views.scale != 1:
+            zoom = tuple(s / views.scale for s in transform.scale)
+            self.view_transform = transform.model_copy(update={"scale": zoom})
 
     def __len__(self) -> int:
         return len(self.frames)
 
     def __getitem__(self, key: tuple[int, int]) -> dict[str, torch.Tensor]:
         index, position = key
-        frame = None
+        frame, transform = None, self.transform
         if self.views is not None:
             pick = np.random.default_rng([self.seed, position, 2])
             if pick.random() < self.view_share:
                 frame = self.views.view(index, int(pick.integers(self.views.per_frame)))
+                transform = self.view_transform
         if frame is None:
             frame = self.frames[index]
         batch_rng = np.random.default_rng([self.seed, position // self.batch_size, 1])
         crop = crop_size(batch_rng, self.transform, self.multiple)
         rng = np.random.default_rng([self.seed, position])
-        params = sample_params(rng, self.transform, *frame.depth.shape, crop)
+        params = sample_params(rng, transform, *frame.depth.shape, crop)
         return frame_to_tensors(apply_params(frame, params), self.encoding)
 
 

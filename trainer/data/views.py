@@ -15,6 +15,10 @@ teach "blurry means near").
   training loss never scores. Holes in the photo (disocclusions, the frame's edges after a move
   back, pixels the sensor had no depth for) are filled by OpenCV's inpainting, only so the
   network sees a photo without black holes.
+- A view is rendered at no more than twice the pixels the training transform keeps of its frame (the
+  recording's full resolution for 640x480): a view moved forward by the most ``forward`` allows (45%
+  of the median depth) is magnified up to 1.8x, so it stays as sharp as the frames, and a large
+  recording's bank costs no more than a small one's.
 - The views are rendered once, before training, into a bank beside the run's checkpoints
   (``views/``: PNG pairs and a CSV manifest): a step reads them as it reads any frame, so steps
   do not slow, and ``--resume`` finds the bank already made.
@@ -35,7 +39,8 @@ from PIL import Image
 from contract.geometry import Intrinsics
 from recordings.frames import WRITTEN_DEPTH_SCALE, Frame, FrameReader, RecordedPair
 from recordings.manifest import ManifestReader, write_manifest
-from trainer.config import RenderedViews
+from trainer.config import RenderedViews, TransformConfig
+from trainer.data.transforms import resize_frame
 
 #: Points nearer the moved camera than this (metres) are behind or inside it: never drawn.
 NEAR_CLIP_M = 0.05
@@ -43,6 +48,9 @@ NEAR_CLIP_M = 0.05
 MAX_SPLAT = 3
 #: The inpainting radius in pixels (``cv2.inpaint``'s ``inpaintRadius``).
 INPAINT_RADIUS = 3
+#: Views are rendered at this many times the largest scale the training transform draws (at most the
+#: recording's own size): more than the 1.8x that the farthest forward move magnifies a frame by.
+OVERSAMPLING = 2.0
 
 
 @dataclass(frozen=True)
@@ -161,24 +169,37 @@ class ViewBank:
     per_frame: int
     #: Milliseconds a view took to render (NaN where the bank was found made).
     render_ms: float
+    #: The views' size as a share of their frames' (1: rendered at the recording's resolution).
+    scale: float = 1.0
 
     def view(self, frame_index: int, j: int) -> Frame:
         return self.reader[frame_index * self.per_frame + j]
 
 
-def view_bank(frames: FrameReader, settings: RenderedViews, seed: int, folder: Path) -> ViewBank:
-    """The bank of rendered views in ``folder``: made now, or found made by the same frames and settings."""
-    key = {"settings": settings.model_dump(mode="json"), "seed": seed, "frames": [frames[0].name, len(frames)]}
+def view_bank(frames: FrameReader, settings: RenderedViews, seed: int, folder: Path, scale: float = 1.0) -> ViewBank:
+    """The bank of rendered views in ``folder``: made now, or found made by the same frames and settings.
+
+    Each frame is shrunk to ``scale`` of its size (area-like for the photo, nearest for depth) and rendered there.
+    """
+    key = {
+        "settings": settings.model_dump(mode="json"),
+        "seed": seed,
+        "frames": [frames[0].name, len(frames)],
+        "scale": scale,
+    }
     manifest, record = folder / "views.csv", folder / "views.json"
     if manifest.is_file() and record.is_file():
         made = json.loads(record.read_text())
         if made["key"] == key:
-            return ViewBank(ManifestReader(manifest), settings.per_frame, float("nan"))
+            return ViewBank(ManifestReader(manifest), settings.per_frame, float("nan"), scale)
     folder.mkdir(parents=True, exist_ok=True)
     pairs: list[RecordedPair] = []
     began = time.perf_counter()
     for i in range(len(frames)):
         frame = frames[i]
+        if scale < 1:
+            height, width = frame.depth.shape
+            frame = resize_frame(frame, max(1, round(height * scale)), max(1, round(width * scale)))
         valid = frame.depth[frame.depth > 0]
         median = float(np.median(valid)) if valid.size else 0.0
         for j in range(settings.per_frame):
@@ -188,7 +209,13 @@ def view_bank(frames: FrameReader, settings: RenderedViews, seed: int, folder: P
     ms = (time.perf_counter() - began) * 1000 / max(1, len(pairs))
     write_manifest(manifest, pairs)
     record.write_text(json.dumps({"key": key, "views": len(pairs), "render_ms": round(ms, 1)}, indent=1))
-    return ViewBank(ManifestReader(manifest), settings.per_frame, ms)
+    return ViewBank(ManifestReader(manifest), settings.per_frame, ms, scale)
+
+
+def render_scale(transform: TransformConfig) -> float:
+    """The share of a frame's size its views are rendered at: ``OVERSAMPLING`` times the largest scale the
+    training transform draws, and never above the recording's own."""
+    return min(1.0, OVERSAMPLING * max(transform.scale))
 
 
 def _write_view(view: Frame, folder: Path, stem: str) -> RecordedPair:
