@@ -199,7 +199,8 @@ def test_fit_starts_from_imagenet_by_default_and_renders_views_into_its_budget(r
     result = run_cli(*args)
     phases = list(dict.fromkeys(line.split(":")[0] for line in result.stderr.splitlines() if "%|" in line))
     assert phases[:3] == ["inspecting", "rendering views", "measuring"], result.stderr
-    assert "rendered views: 32 of 16 train frames in" in result.stdout and "50% of each batch" in result.stdout
+    assert "rendered views: 32, 2 of each of the 16 train frames, in" in result.stdout
+    assert "50% of each batch" in result.stdout
     bank = tmp_path / "run" / "train" / "views"
     assert len(list(bank.glob("*.color.png"))) == 32 and len(list(bank.glob("*.depth.png"))) == 32
     card = load_card(tmp_path / "registry" / "my-room" / "0.1.0")

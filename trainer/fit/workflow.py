@@ -233,10 +233,12 @@ def _render_views(config: RunConfig, progress: Progress) -> list[str]:
     began = time.monotonic()
     frames = training_frames(config)
     bank = training_views(config, frames)
-    assert bank is not None  # a share above 0 always makes one
+    if bank is None:
+        raise RuntimeError("data.views.share is above 0 but no bank of views was made")
     line = (
-        f"rendered views: {len(bank.reader)} of {len(frames)} train frames in {time.monotonic() - began:.0f} s "
-        f"({bank.render_ms:.0f} ms a view); {config.data.views.share:.0%} of each batch"
+        f"rendered views: {len(bank.reader)}, {bank.per_frame} of each of the {len(frames)} train frames, in "
+        f"{time.monotonic() - began:.0f} s ({bank.render_ms:.0f} ms a view); {config.data.views.share:.0%} of "
+        "each batch"
     )
     progress.say(line)
     return [line]
