@@ -221,7 +221,7 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
         if times:
             engine, why = _fastest(times)
             chosen[precision] = (engine, passed[engine], times[engine].median)
-            if len(times) > 1:
+            if len(times) > 1:  # a choice between engines, said with its timings
                 why_chosen[precision] = why
             dropped |= {f"{other} {precision}": why for other, why in (reasons | failed).items()}
         else:
@@ -366,6 +366,8 @@ def _fastest(times: dict[Engine, Timing]) -> tuple[Engine, str]:
     """
     best = min(times, key=lambda engine: times[engine].median)
     others = ", ".join(f"{engine} {timing}" for engine, timing in times.items() if engine != best)
+    if len(times) == 1:
+        return best, f"{best} {times[best]}, the only engine timed"
     if "onnxruntime" not in times:
         return best, f"{best} {times[best]}, the fastest (against {others})"
     reference = times["onnxruntime"]

@@ -542,6 +542,7 @@ def test_a_writer_failure_never_replaces_the_error_on_its_way_up(monkeypatch, ca
 
     monkeypatch.setattr(client, "open_stream", lambda url, **options: Socket())
     monkeypatch.setattr(client, "answers", one_answer)
+    monkeypatch.setattr("clients.sinks.decoded", lambda frame, header, payloads: frame)  # no payloads to decode
     frames = iter([SourceFrame("shot-0", 0, KITCHEN[0].read_bytes())])
     tally = Tally()
     expected = ConnectionClosedError if stream_breaks else OSError
