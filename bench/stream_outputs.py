@@ -170,7 +170,8 @@ def streamed_to(
     rate: float = 0.0,
 ) -> Streamed:
     """``rgb2cloud stream``'s loop from ``recording`` (``frames`` of it) to one output, and how it went."""
-    from cli.stream import Tally, close_all, paced, run_stream
+    from cli.stream_frames import paced
+    from cli.stream_loop import Tally, close_all, run_stream
     from clients.sinks.bag import BagSink
     from clients.sinks.foxglove import FoxgloveSink
     from clients.sinks.ros2 import Ros2Sink

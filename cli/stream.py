@@ -9,276 +9,24 @@ torch-free halves the serving install may hold: the clients and the recordings' 
 
 from __future__ import annotations
 
-import itertools
-import queue
-import sys
 import tempfile
-import threading
-import time
-from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from cli.stream_loop import Tally, close_all, run_stream
 from contract.encodings import STREAM_MAX_PIXELS
 from contract.errors import UserError
+
+if TYPE_CHECKING:
+    from clients.sinks import Sink
+    from clients.sinks.ros_messages import RosMessages
 
 CAMERA_HELP = (
     "{}, pixels: a recording's in its own pixels, as fit takes it (its camera is overridden, then scaled to "
     "each photo sent); a camera's, video's or photos' in their frames' pixels"
 )
-
-
-@dataclass(frozen=True)
-class Sending:
-    """A frame as it goes out: the photo at the size sent, and its camera as the stream's options in that
-    photo's pixels (None: the service's own camera, from the photo's EXIF or the model's)."""
-
-    frame: Any  # recordings.sources.SourceFrame
-    camera: dict[str, float] | None
-
-
-@dataclass(frozen=True)
-class Unreadable:
-    """A photo the client cannot open to fit it to the stream: its frame's name, and why in a few words."""
-
-    name: str
-    why: str
-
-
-def unreadable_reason(error: Exception) -> str:
-    """Why Pillow could not open a photo, as the one line that names it says it."""
-    from PIL import Image, UnidentifiedImageError
-
-    if isinstance(error, UnidentifiedImageError):
-        return "not an image Pillow can read"
-    if isinstance(error, Image.DecompressionBombError):
-        return f"over Pillow's decompression-bomb limit of {2 * Image.MAX_IMAGE_PIXELS:,} pixels"
-    return f"cannot be read ({error})"
-
-
-def stream_options(first: Sending, given: dict[str, Any]) -> dict[str, Any]:
-    """The stream's query: both outputs, raw float depth and raw points, and the first frame's camera (each
-    later frame's is sent as it changes)."""
-    options = {"output": "both", "depth_encoding": "raw32", "cloud_encoding": "raw"}
-    return options | {k: v for k, v in given.items() if v is not None} | (first.camera or {})
-
-
-class Fitting:
-    """Each frame as it is sent: resized to the stream's pixel limit if it is over (said once), with its
-    camera in the pixels of the photo sent. A recording's camera comes in each frame (the user's overrides
-    already applied in the recording's pixels by its reader); a camera's, video's or photos' is what the
-    user gave in their frames' pixels, only the values given, so the service fills in the rest as ``/depth``
-    does."""
-
-    def __init__(self, max_pixels: int, given: dict[str, float], say: Any):
-        self.max_pixels, self.given, self.say, self.said = max_pixels, given, say, False
-
-    def __call__(self, frame: Any) -> Sending | Unreadable:
-        """The frame as it goes out, or why it cannot: a photo that is no image, is cut off where it must be
-        decoded here (to be resized), or is over Pillow's decompression-bomb limit."""
-        from PIL import Image
-
-        try:
-            return self._fitted(frame)
-        except (OSError, ValueError, Image.DecompressionBombError) as e:  # OSError: unidentified or truncated
-            return Unreadable(frame.name, unreadable_reason(e))
-
-    def _fitted(self, frame: Any) -> Sending:
-        import dataclasses
-        import io
-
-        from PIL import Image
-
-        from contract.geometry import resized_coordinate
-
-        with Image.open(io.BytesIO(frame.data)) as im:
-            width, height = im.size
-            sx = sy = 1.0
-            if width * height > self.max_pixels:
-                scale = (self.max_pixels / (width * height)) ** 0.5
-                size = max(1, int(width * scale)), max(1, int(height * scale))
-                if not self.said:
-                    self.say(
-                        f"photos of {width}x{height} are over the stream's {self.max_pixels:,} pixels: sent at "
-                        f"{size[0]}x{size[1]}, their camera scaled to match"
-                    )
-                    self.said = True
-                out = io.BytesIO()
-                # Its EXIF goes with it: the service turns it upright and reads its focal length (which
-                # scales with the stored size) as it would the photo's own.
-                resized = im.convert("RGB").resize(size, Image.Resampling.LANCZOS)
-                resized.save(out, format="JPEG", quality=90, exif=im.getexif())
-                frame = dataclasses.replace(frame, data=out.getvalue())
-                sx, sy = size[0] / width, size[1] / height
-                width, height = size
-        if frame.camera is not None:
-            k = frame.camera.resized(width, height)
-            return Sending(dataclasses.replace(frame, camera=k), {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy})
-        given = dict(self.given)
-        if ("fx" in given) != ("fy" in given):  # as /depth takes one focal length: both, in the photo's pixels
-            given["fx"] = given["fy"] = given.get("fx", given.get("fy"))
-        scaled = {
-            "fx": lambda v: v * sx,
-            "fy": lambda v: v * sy,
-            "cx": lambda v: resized_coordinate(v, sx),
-            "cy": lambda v: resized_coordinate(v, sy),
-        }
-        return Sending(frame, {key: scaled[key](v) for key, v in given.items()} or None)
-
-
-def paced(frames: Iterable[Any], rate: float) -> Iterator[Any]:
-    """Frames no sooner than their stamps say, at ``rate`` times their recorded pace (as ``ros2 bag play``
-    plays); ``rate`` 0 lets them go as fast as they are taken."""
-    began: tuple[float, int] | None = None
-    for frame in frames:
-        if rate > 0:
-            if began is None:
-                began = (time.monotonic(), frame.stamp_ns)
-            wait = began[0] + (frame.stamp_ns - began[1]) / 1e9 / rate - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
-        yield frame
-
-
-def run_stream(
-    source: Any,
-    url: str,
-    sinks: list[Any],
-    given: dict[str, Any],
-    given_camera: dict[str, float],
-    max_pixels: int,
-    tally: Tally,
-    rate: float = 0.0,
-    skip_written: Any = None,
-) -> None:
-    """Every frame through one stream into every sink (``clients.sinks``); ``tally`` counts what became of the
-    frames, also when the stream ends in an error. ``given_camera`` is the user's camera for a source whose
-    frames carry none, in its frames' pixels; ``rate`` paces a recording (``paced``); ``skip_written`` leaves
-    out frames a folder holds already. A photo the client cannot open is one line that names it, and the
-    stream goes on with the next."""
-    from tqdm import tqdm
-    from websockets.exceptions import InvalidHandshake
-
-    from clients.stream import answers, open_stream
-
-    frames = source.frames
-    if skip_written is not None and not source.live:
-        frames = (f for f in frames if not all(p.exists() for p in skip_written.paths(f.name)))
-    frames = paced(frames, 0.0 if source.live else rate)
-
-    def say(line: str) -> None:
-        tqdm.write(line, file=sys.stderr)
-
-    fitting = Fitting(max_pixels, given_camera, say)
-
-    def readable(frames: Iterable[Any]) -> Iterator[Sending]:
-        for frame in frames:
-            fitted = fitting(frame)
-            if isinstance(fitted, Unreadable):
-                tally.unreadable += 1
-                say(f"{fitted.name}: skipped, {fitted.why}")
-            else:
-                yield fitted
-
-    sending = readable(frames)
-    first = next(sending, None)
-    if first is None:
-        return
-    sending = itertools.chain([first], sending)
-    bar = tqdm(desc="stream", unit="frame", mininterval=1.0)
-    started = time.perf_counter()
-    try:
-        socket = open_stream(url, max_pixels=max_pixels, **stream_options(first, given))
-    except InvalidHandshake as e:
-        raise UserError(f"{url}: the service refused the stream: {e}") from None
-    writer = Writer(sinks)
-    try:
-        with socket:
-            for answer in answers(socket, sending, lambda s: s.frame.data, source.live, options_of=lambda s: s.camera):
-                bar.update(1)
-                tally.sent_again += answer.tries > 1
-                if answer.error is not None:
-                    tally.refused += 1
-                    say(f"{answer.item.frame.name}: {answer.error}")
-                    continue
-                writer.put(answer)
-                rate = writer.written / max(1e-9, time.perf_counter() - started)
-                bar.set_postfix(fps=f"{rate:.1f}", skipped=answer.header["skipped"], refresh=False)
-    finally:  # the bar closed and every answer counted whatever ends the stream
-        failure = writer.finish()
-        bar.close()
-        tally.written = writer.written
-        if failure is not None:
-            if sys.exc_info()[1] is None:
-                raise failure
-            say(f"also, an output failed: {failure}")  # the error on its way up is the one the user sees
-
-
-@dataclass
-class Tally:
-    """What became of a stream's frames: written to every sink, refused by the service (its words said per
-    frame), skipped as photos the client could not open (each named as it was), and sent again after a 503
-    (the service was busy), whether or not they then came back."""
-
-    written: int = 0
-    refused: int = 0
-    unreadable: int = 0
-    sent_again: int = 0
-
-    @property
-    def skipped(self) -> int:
-        return self.refused + self.unreadable
-
-    def summary(self) -> str:
-        said = [f"{self.written} frames written"]
-        if self.refused:
-            said.append(f"{self.refused} refused by the service")
-        if self.unreadable:
-            said.append(f"{self.unreadable} skipped as unreadable")
-        if self.sent_again:
-            said.append(f"{self.sent_again} sent again while the service was busy")
-        return ", ".join(said)
-
-
-class Writer:
-    """Writes answers to the sinks in a thread of its own, in order, so the next answers are read (and the
-    service kept busy) while a frame's files and messages go out. ``finish`` writes what is queued and stops;
-    after Ctrl-C too, so each frame is written whole or not at all."""
-
-    def __init__(self, sinks: list[Any], depth: int = 8):
-        self.sinks, self.written = sinks, 0
-        self._queue: queue.Queue = queue.Queue(maxsize=depth)
-        self._failure: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while (answer := self._queue.get()) is not None:
-            if self._failure is None:
-                try:
-                    from clients.sinks import decoded
-
-                    frame = decoded(answer.item.frame, answer.header, answer.payloads)
-                    for sink in self.sinks:
-                        sink.write(frame)
-                    self.written += 1
-                except BaseException as e:  # a full disk: raised where answers are read
-                    self._failure = e
-
-    def put(self, answer: Any) -> None:
-        if self._failure is not None:
-            raise self._failure
-        self._queue.put(answer)
-
-    def finish(self) -> BaseException | None:
-        """Writes what is queued and stops; the failure that stopped the writing, if any, for the caller to
-        raise or, where an error is already on its way up, to report beside it."""
-        self._queue.put(None)
-        self._thread.join()
-        return self._failure
 
 
 #: Why a source's own depth cannot go beside the model's.
@@ -318,7 +66,7 @@ TfParent = Annotated[
 
 
 def open_live_sinks(
-    sinks: list[Any], bag: Path | None, ros2_domain: int | None, foxglove: str | None, messages: Any
+    sinks: list[Sink], bag: Path | None, ros2_domain: int | None, foxglove: str | None, messages: RosMessages
 ) -> None:
     """The bag, the ROS 2 publishers and the Foxglove server, each appended to ``sinks`` as it opens, so the
     caller closes those that did open when a later one fails."""
@@ -393,7 +141,7 @@ def stream(
             raise UserError(f"{source}: --with-sensor-depth needs depth registered to colour ({NOT_REGISTERED})")
         messages = RosMessages(Topics(namespace), found.frame_id, with_colour, with_sensor_depth, tf_parent)
         folder = FolderSink(out, pointcloud) if out is not None else None
-        sinks: list[Any] = [] if folder is None else [folder]
+        sinks: list[Sink] = [] if folder is None else [folder]
         tally: Tally | None = None
         try:
             open_live_sinks(sinks, bag, ros2_domain, foxglove, messages)
@@ -418,24 +166,6 @@ def stream(
                     typer.echo(tally.summary() + shortfall)
     if tally is not None and tally.skipped:
         raise typer.Exit(1)
-
-
-def close_all(sinks: list[Any], echo: Callable[[str], None]) -> None:
-    """Closes every sink, each whatever the others do: one that fails to close (a full disk under the bag)
-    never leaves the next open. The first failure is raised once all are closed, unless an error is already
-    on its way up (called from a ``finally``): that one is what the user sees, and the failures to close
-    are each echoed as a line of their own."""
-    failures = []
-    for sink in sinks:
-        try:
-            sink.close()
-        except Exception as e:
-            failures.append(e)
-    in_flight = sys.exc_info()[1] is not None
-    for failure in failures if in_flight else failures[1:]:
-        echo(f"also, an output failed to close: {failure}")
-    if failures and not in_flight:
-        raise failures[0]
 
 
 def chosen_outputs(

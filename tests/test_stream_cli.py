@@ -457,7 +457,7 @@ class Closing:
 
 
 def test_every_output_is_closed_and_a_failure_to_close_never_hides_the_error_on_its_way_up():
-    from cli.stream import close_all
+    from cli.stream_loop import close_all
 
     # Nothing on its way up: every sink is closed, the first failure is raised, the others are said.
     sinks, said = [Closing(OSError("disk full")), Closing(), Closing(ValueError("second"))], []
@@ -524,7 +524,7 @@ def test_a_writer_failure_never_replaces_the_error_on_its_way_up(monkeypatch, ca
     from websockets.exceptions import ConnectionClosedError
 
     import clients.stream as client
-    from cli.stream import Tally, run_stream
+    from cli.stream_loop import Tally, run_stream
     from recordings.sources import Source, SourceFrame
 
     class Socket:
