@@ -425,7 +425,7 @@ def test_the_plan_spends_what_the_budget_leaves_and_refuses_a_budget_too_small()
         train_s=450,
         steps=225,
         decay_start=112,
-        val_every=56,
+        val_every=57,  # validations at 57, 114 and 171, and at the last step: the four planned
         checkpoint_every=22,
         deadline_s=490,
         validation_s=10,

@@ -14,7 +14,7 @@ from conftest import tiny_config
 
 import trainer.train as training
 from trainer.config import OptimConfig, RunConfig
-from trainer.fit.budget import VALIDATIONS, Pacer, Plan, continued_decay, resumed_deadline
+from trainer.fit.budget import VALIDATIONS, Pacer, Plan, continued_decay, resumed_deadline, validation_every
 
 #: The first steps' extra seconds, and how many of them are slow.
 SLOW_S, SLOW_STEPS = 0.5, 3
@@ -166,3 +166,76 @@ def test_a_late_last_step_ends_the_run_not_re_plans_it(tmp_path):
         busy += seconds
         assert pacer(step, busy) is None or step < 100
     assert pacer.config.train.steps == 100 and pacer.config.optim.lr > 0, lines
+
+
+def paced_run(tmp_path, step_seconds, validation_seconds: float, plan_validation_s: float):
+    """A fit's training loop as ``trainer.train`` runs it, on a fake clock: 1,000 steps planned at 1 s in 1,000 s,
+    validations reserved at ``plan_validation_s`` in all (the initial one among them) but taking
+    ``validation_seconds`` each, at every multiple of ``val_every`` and at the last step, and a deadline at the
+    end of the training share. Returns when training ended, the steps trained, the validations and the pacer."""
+    steps = 1000
+    config = RunConfig.model_validate(
+        tiny_config(
+            tmp_path / "run",
+            train={"steps": steps, "val_every": validation_every(0, steps, VALIDATIONS), "checkpoint_every": 100},
+            optim={"decay_start": steps // 2, "decay_steps": steps - steps // 2},
+        )
+    )
+    per_validation = plan_validation_s / (VALIDATIONS + 1)
+    deadline = 1000.0 + VALIDATIONS * per_validation  # training's share: its steps and the validations in it
+    plan = Plan(2000.0, 1.0, 1000.0, steps, steps // 2, config.train.val_every, 100, deadline, False, plan_validation_s)
+    clock, lines = Clock(), []
+    pacer = Pacer(plan, config, deadline, lambda p, c, line: lines.append(line), clock)
+    step, busy, validating, validations = 0, 0.0, 0.0, 0
+    while True:
+        step += 1
+        seconds = step_seconds(clock.now)
+        clock.now += seconds
+        busy += seconds
+        pacer(step, busy, validating, validations)
+        train = pacer.config.train
+        last = step >= train.steps or clock.now >= deadline
+        if step % train.val_every == 0 or last:
+            clock.now += validation_seconds
+            validating += validation_seconds
+            validations += 1
+        if last:
+            return clock.now, deadline, step, validations, pacer, lines
+
+
+@pytest.mark.parametrize("slow_share", [0.1, 0.2])
+def test_a_slow_start_is_forgotten_however_long_it_lasts(tmp_path, slow_share):
+    """Steps 3x slower than planned for the first 10% or 20% of the time, then as planned: the rate over the
+    later half of the steps leaves the slow ones behind, and training ends at 97% of its share or later (the old
+    window kept them to the end and stopped at 93% and 91%), on its last step, with the planned validations."""
+    ended, deadline, step, validations, pacer, lines = paced_run(
+        tmp_path, lambda now: 3.0 if now < slow_share * 1000 else 1.0, 2.0, 5 * 2.0
+    )
+    assert 0.97 * deadline <= ended <= deadline + 1.0, (ended, lines)
+    assert step == pacer.config.train.steps and pacer.config.optim.lr_at(step) == 0.0
+    assert validations == VALIDATIONS, lines
+
+
+def test_validations_slower_than_planned_are_measured_into_the_plan(tmp_path):
+    """Validations take 2.5x the plan's estimate (25 s against 10): from the first one on, the pacer reserves what
+    they take, so training ends no later than one step past its deadline, with the four planned validations."""
+    ended, deadline, step, validations, pacer, lines = paced_run(tmp_path, lambda now: 1.0, 25.0, 5 * 10.0)
+    assert 0.97 * deadline <= ended <= deadline + 1.0, (ended, deadline, lines)
+    assert validations == VALIDATIONS and step == pacer.config.train.steps, lines
+
+
+#: (step, steps, validations left, the steps they fall at), worked out by hand: train validates at every multiple
+#: of val_every and at its last step.
+SPACINGS = [
+    (0, 1000, 4, {250, 500, 750, 1000}),  # every 250
+    (0, 225, 4, {57, 114, 171, 225}),  # every 57: 56 would add 224 beside 225
+    (100, 1000, 3, {334, 668, 1000}),  # 300 to 333 each leave three multiples of their own before 1000
+    (730, 866, 1, {866}),  # the last alone
+    (0, 3, 4, {1, 2, 3}),  # too short for four: every step
+]
+
+
+@pytest.mark.parametrize(("step", "steps", "left", "expected"), SPACINGS)
+def test_validations_are_spaced_to_the_count_left(step, steps, left, expected):
+    every = validation_every(step, steps, left)
+    assert {s for s in range(step + 1, steps + 1) if s % every == 0} | {steps} == expected, every

@@ -76,10 +76,10 @@ def _check_resumable(saved: dict, config: RunConfig) -> None:
             )
 
 
-#: ``revise(step, busy_s)`` after each step, with the seconds the loop has run so far less its validations
-#: (batch loading, logging and checkpoints included: every step pays for them): the run's config with its
-#: steps and schedule re-planned, or None.
-Revise = Callable[[int, float], RunConfig | None]
+#: ``revise(step, busy_s, validating_s, validations)`` after each step, with the seconds the loop has run so far
+#: less its validations (batch loading, logging and checkpoints included: every step pays for them), and the
+#: validations it has run and their seconds: the run's config with its steps and schedule re-planned, or None.
+Revise = Callable[[int, float, float, int], RunConfig | None]
 
 
 def train(
@@ -357,7 +357,7 @@ def _train(
         unit="step",
         dynamic_ncols=True,
     )
-    window_seconds, window_images, logged, validating = 0.0, 0, {}, 0.0
+    window_seconds, window_images, logged, validating, validations = 0.0, 0, {}, 0.0, 0
     began = time.perf_counter()
     while run.step < config.train.steps:
         losses, seconds, images = train_step(run, run.step, next(batches), gan_loss)
@@ -366,7 +366,8 @@ def _train(
         window_images += images
         run.step += 1
         progress.update(1)
-        if revise is not None and (revised := revise(run.step, time.perf_counter() - began - validating)) is not None:
+        busy = time.perf_counter() - began - validating
+        if revise is not None and (revised := revise(run.step, busy, validating, validations)) is not None:
             config = run.config = revised
             progress.total = config.train.steps
         last = run.step >= config.train.steps or (deadline is not None and time.monotonic() >= deadline)
@@ -384,6 +385,7 @@ def _train(
             tick = time.perf_counter()
             validate(run)
             validating += time.perf_counter() - tick
+            validations += 1
         if ddp.is_main and (at_checkpoint or last):
             run.save("last.pt")
         if ddp.world_size > 1 and (at_validation or at_checkpoint):

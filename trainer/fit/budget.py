@@ -169,7 +169,7 @@ def plan_training(budget_s: float, spent_s: float, step_s: float, work: Workload
         train_s=train_s,
         steps=steps,
         decay_start=round(steps * (1 - DECAY_SHARE)),
-        val_every=max(1, steps // VALIDATIONS),
+        val_every=validation_every(0, steps, VALIDATIONS),
         checkpoint_every=min(per_checkpoint, steps),
         deadline_s=budget_s - work.tail_s(),
         fixed=fixed,
@@ -180,9 +180,25 @@ def plan_training(budget_s: float, spent_s: float, step_s: float, work: Workload
 #: How often a fit compares its steps' real rate with its plan: after each share of its planned steps or of its
 #: training time, whichever comes first, over at least ``REVISE_MIN_STEPS`` steps. It re-plans when the steps
 #: left would end more than ``REVISE_TOLERANCE`` of the training time early or late; in the last
-#: ``SETTLED_SHARE`` of the steps it looks after every one and re-plans only when they would end more than a
-#: step late, so the deadline never cuts the decay short.
-REVISE_SHARE, REVISE_MIN_STEPS, REVISE_TOLERANCE, SETTLED_SHARE = 0.05, 5, 0.05, 0.1
+#: ``SETTLED_SHARE`` of the steps it looks after every one and re-plans when they would end more than a step
+#: late (so the deadline never cuts the decay short) or more than ``SETTLED_EARLY`` of the training time early.
+REVISE_SHARE, REVISE_MIN_STEPS, REVISE_TOLERANCE, SETTLED_SHARE, SETTLED_EARLY = 0.05, 5, 0.05, 0.1, 0.02
+
+
+def validation_every(step: int, steps: int, left: int) -> int:
+    """The ``val_every`` that gives exactly ``left`` validations after ``step`` in a run of ``steps`` (every step
+    validated where fewer steps are left).
+
+    ``train`` validates at every multiple of ``val_every`` and at its last step, so ``left - 1`` multiples must
+    fall in ``(step, steps - 1]``: the first such spacing from an even one (the steps left over ``left``) up.
+    """
+    wanted = min(left - 1, steps - 1 - step)
+    if wanted <= 0:
+        return steps + 1
+    for every in range(max(1, (steps - step) // left), steps + 1):
+        if (steps - 1) // every - step // every == wanted:
+            return every
+    return steps + 1
 
 
 def resumed_deadline(plan: Plan, step: int, now: float) -> float:
@@ -209,13 +225,14 @@ def continued_decay(optim: OptimConfig, step: int, steps: int) -> OptimConfig:
 class Pacer:
     """Re-plans a fit's steps from the rate they really run at, so training fills the time the plan gave it.
 
-    Called after each step (``trainer.train.Revise``) with the seconds the steps took; every so often it
-    measures the rate since the first step, or since its first re-plan, which leaves a slow start behind
-    (a window that only grows, so a noisy machine or a checkpoint does not swing the plan to and fro), and where the
-    steps left at that rate would end the training more than ``REVISE_TOLERANCE`` early or late, it sets a
-    new step count (the selection frames' remaining validations set aside), its learning-rate decay,
-    validations and checkpoints, tells ``on_revise`` (which says so and saves the plan for ``--resume``),
-    and returns the run's new config.
+    Called after each step (``trainer.train.Revise``) with the seconds the steps took and the validations done
+    (how many, and how long they took). Every so often it measures the rate over the later half of the steps
+    so far: a window that grows, so a noisy machine or a checkpoint does not swing the plan to and fro, and
+    that forgets a slow start (a GPU's first steps, a busy machine) however long it lasted. Where the steps
+    left at that rate would end the training more than ``REVISE_TOLERANCE`` early or late, with the
+    validations left at their measured length (the plan's estimate until one is measured), it sets a new step
+    count, its learning-rate decay, checkpoints, and validations at the count the plan made, tells
+    ``on_revise`` (which says so and saves the plan for ``--resume``), and returns the run's new config.
     """
 
     def __init__(
@@ -229,16 +246,17 @@ class Pacer:
         self.plan, self.config, self.deadline, self.on_revise, self.clock = plan, config, deadline, on_revise, clock
         self.validation_s = plan.validation_s / (VALIDATIONS + 1)
         self.every_s = REVISE_SHARE * plan.train_s
-        self.mark: tuple[float, int, float] | None = None  # (clock, step, busy s) at the first step or re-plan
+        self.busy: dict[int, float] = {}  # busy seconds after each step, from the first
         self.looked: tuple[float, int] = (0.0, 0)  # (clock, step) at the last look
         self.revised = 0
 
-    def __call__(self, step: int, busy_s: float) -> RunConfig | None:
+    def __call__(self, step: int, busy_s: float, validating_s: float = 0.0, validations: int = 0) -> RunConfig | None:
         now = self.clock()
-        if self.mark is None:  # the first step (warm-up, allocations) is not a rate
-            self.mark, self.looked = (now, step, busy_s), (now, step)
+        if not self.busy:  # the first step (warm-up, allocations) is not a rate
+            self.busy[step], self.looked = busy_s, (now, step)
             return None
-        _, from_step, from_busy = self.mark
+        self.busy[step] = busy_s
+        first = min(self.busy)
         steps = self.config.train.steps
         if step >= steps:  # the last step is done and its decay has reached zero: nothing is left to re-plan
             return None
@@ -248,22 +266,23 @@ class Pacer:
         if not due or since_look < (1 if settled else REVISE_MIN_STEPS):
             return None
         self.looked = (now, step)
-        rate = (busy_s - from_busy) / (step - from_step)
-        every = self.config.train.val_every
-        validations_left = steps // every - step // every + (1 if steps % every else 0)
-        left_s = self.deadline - now - validations_left * self.validation_s
+        since = min(step - 1, step - (step - first) // 2)  # the later half of the steps so far, one at least
+        rate = (busy_s - self.busy[since]) / (step - since)
+        validation_s = validating_s / validations if validations else self.validation_s
+        left = max(1, VALIDATIONS - validations)  # the last step always validates
+        left_s = self.deadline - now - left * validation_s
         off_s = (steps - step) * rate - left_s  # > 0: the deadline would cut the steps off before their decay ends
-        if settled:  # only a late end is worth a change now: to end a step early, not one late
-            if off_s <= rate:
+        if settled:  # a step late, or a share of the training time early, is worth a change now
+            if -SETTLED_EARLY * self.plan.train_s <= off_s <= rate:
                 return None
-            left_s -= rate
+            left_s -= rate if off_s > 0 else 0.0
         elif abs(off_s) <= REVISE_TOLERANCE * self.plan.train_s:
             return None
         new_steps = max(step + 1, step + int(left_s / rate))
         optim = continued_decay(self.config.optim, step, new_steps)
         decay_start = optim.decay_start or 0
         checkpoint_every = max(1, min(int(CHECKPOINT_SECONDS / rate), new_steps // 10))
-        val_every = max(1, new_steps // VALIDATIONS)
+        val_every = validation_every(step, new_steps, left)
         self.config = self.config.model_copy(
             update={
                 "train": self.config.train.model_copy(
@@ -284,8 +303,6 @@ class Pacer:
             val_every=val_every,
             checkpoint_every=checkpoint_every,
         )
-        if not self.revised:  # the steps before the first re-plan may be a slow start (CUDA): leave them behind
-            self.mark = (now, step, busy_s)
         self.revised += 1
         self.on_revise(self.plan, self.config, line)
         return self.config
