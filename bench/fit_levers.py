@@ -141,6 +141,15 @@ LEVERS = {
             "frozen-start",
             FROM_IMAGENET,
         ),
+        # The same on today's start from 0.9.0, where the rule keeps that start instead.
+        Lever(
+            "views-on-0-9-0",
+            "speed",
+            ("data.views.share=0.5",),
+            "rendered-views' views on the start from the bundled 0.9.0",
+            "from-0-9-0",
+            FROM_0_9_0,
+        ),
         Lever(
             "slow-encoder",
             "speed",

@@ -1,17 +1,17 @@
 """How good a fit gets in how many minutes: each development site, each budget, each starting point.
 
-    python bench/fit_sites.py [--budgets 5 10 20 30] [--starts default 0.9.0 rooms 0.8.0]
+    python bench/fit_sites.py [--budgets 5 10 20 30] [--starts default imagenet rooms 0.8.0]
                               [--sites aims-lab mosd-tabletop]
                               [--markdown docs/fit-benchmark.md] [--curve docs/fit-benchmark.png]
 
 Each cell is one ``rgb2cloud fit`` run in its own process, on this machine, with the
 site's held-out frames scored once at its end (δ1, REL, point-cloud RMSE), beside the
 starting model zero-shot and the best image-free baseline from the same run's card.
-The ``default`` start is what ``fit`` starts from without ``--from`` (ImageNet's Lite0 under a fresh U-Net
-decoder), with fit's default recipe; ``0.9.0`` and ``0.8.0`` are the bundled kitchen models. No site is one its
-starting model saw: the bundled versions saw only 7-Scenes RedKitchen, and the ``rooms`` start is, for each
-site, ``bench/rooms-base.yaml`` trained without that site (leave one site out; trained and published once, then
-reused for every budget).
+The ``default`` start is what ``fit`` starts from without ``--from`` (the bundled base), with fit's default
+recipe; ``imagenet`` is ``--from imagenet`` (ImageNet's Lite0 under a fresh U-Net decoder), and ``0.8.0`` an
+older bundled kitchen model. No site is one its starting model saw: the bundled versions saw only 7-Scenes
+RedKitchen, and the ``rooms`` start is, for each site, ``bench/rooms-base.yaml`` trained without that site (leave
+one site out; trained and published once, then reused for every budget).
 Runs and their published versions go to ``runs/bench-fit/``.
 """
 
@@ -25,7 +25,7 @@ from pathlib import Path
 
 from harness.fitting import DATA, REPO, SITES
 
-STARTS = ("default", "0.9.0", "rooms", "0.8.0")
+STARTS = ("default", "imagenet", "rooms", "0.8.0")
 BUNDLED = REPO / "weights" / "rgb2cloud-7scenes"
 ROOMS_CONFIG = REPO / "bench" / "rooms-base.yaml"
 SEVEN_SCENES = DATA / "7scenes-redkitchen"
@@ -65,6 +65,8 @@ def start_options(site: str, start: str) -> list[str]:
     """``fit``'s ``--from`` for a start: none for fit's default."""
     if start == "default":
         return []
+    if start == "imagenet":
+        return ["--from", "imagenet"]
     return ["--from", str(rooms_without(site)) if start == "rooms" else str(BUNDLED / start)]
 
 

@@ -13,7 +13,6 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from cli.stream import stream
-from contract.card import IMAGENET_START
 from recordings.frames import DEFAULT_MAX_FRAMES  # numpy and PIL only: the serving install has them
 
 if TYPE_CHECKING:
@@ -164,12 +163,12 @@ def export(
 
 # fit's longer options, named here so that the command reads as its list of options.
 FitFrom = Annotated[
-    str,
+    str | None,
     typer.Option(
         "--from",
-        help="where the generator starts: 'imagenet' (ImageNet's EfficientNet-Lite0 under a fresh U-Net decoder, "
-        "the encoder frozen), a published version folder, or NAME[:VERSION] of a model in the registries, such "
-        "as the bundled kitchen model rgb2cloud-7scenes",
+        help="where the generator starts: a published version folder, NAME[:VERSION] of a model in the "
+        "registries, or 'imagenet' (ImageNet's EfficientNet-Lite0 under a fresh U-Net decoder, the encoder "
+        "frozen) (default: the bundled rgb2cloud-7scenes)",
     ),
 ]
 FitFormat = Annotated[
@@ -209,7 +208,7 @@ def fit(
     name: Annotated[str, typer.Option(help="the model's name in the registry")],
     licence: Annotated[str, typer.Option(help="the terms the recording may be used under (required)")],
     budget: Annotated[float, typer.Option(help="minutes, wall clock, for the whole command", min=1)] = 30.0,
-    from_: FitFrom = IMAGENET_START,
+    from_: FitFrom = None,
     registry: Annotated[Path | None, typer.Option(help=REGISTRY_HELP)] = None,
     format: FitFormat = None,
     fx: Annotated[float | None, typer.Option(help="focal length x in pixels (overrides intrinsics.json)")] = None,

@@ -187,16 +187,16 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
 
 
 @pytest.mark.slow
-def test_fit_starts_from_imagenet_by_default_and_renders_views_into_its_budget(registry, tmp_path):
-    """No --from: ImageNet's Lite0 under a fresh U-Net decoder, the encoder frozen; views rendered before the plan."""
+def test_a_fit_from_imagenet_renders_views_into_its_budget(registry, tmp_path):
+    """--from imagenet: ImageNet's Lite0 under a fresh U-Net decoder, the encoder frozen; views rendered before
+    the plan, into the run folder, their settings on the card."""
     from trainer.efficientnet import imagenet_state
 
     data = write_recording(tmp_path / "rec", 24, open3d=False)
     args = fit_args(data, tmp_path, registry / "tiny" / "0.1.0")
-    at = args.index("--from")
+    args[args.index("--from") + 1] = "imagenet"
     views = ["--set", "data.views.share=0.5", "--set", "data.views.per_frame=2"]
-    args = [*args[:at], *args[at + 2 :], "--steps", "4", *views]
-    result = run_cli(*args)
+    result = run_cli(*args, "--steps", "4", *views)
     phases = list(dict.fromkeys(line.split(":")[0] for line in result.stderr.splitlines() if "%|" in line))
     assert phases[:3] == ["inspecting", "rendering views", "measuring"], result.stderr
     assert "rendered views: 32, 2 of each of the 16 train frames, in" in result.stdout
@@ -209,7 +209,8 @@ def test_fit_starts_from_imagenet_by_default_and_renders_views_into_its_budget(r
     config = card.training.config
     assert config["optim"]["encoder_lr_scale"] == 0 and config["data"]["views"]["share"] == 0.5
     assert config["data"]["views"]["forward"] == 0.45  # the card records every rendering setting
-    assert card.training.data[-1].name.startswith("ImageNet ILSVRC-2012")  # the encoder's lineage
+    # The encoder's lineage alone: nothing of the bundled kitchen model, nor its 7-Scenes licence.
+    assert [d.name.startswith("ImageNet ILSVRC-2012") for d in card.training.data] == [False, True]
     # Frozen: the published encoder is ImageNet's, weights and BatchNorm statistics.
     weights = load_generator_weights(tmp_path / "registry" / "my-room" / "0.1.0", card.generator)
     imagenet = imagenet_state()
@@ -217,13 +218,18 @@ def test_fit_starts_from_imagenet_by_default_and_renders_views_into_its_budget(r
         assert torch.equal(weights[f"encoder.{key}"], imagenet[key])
 
 
-def test_from_names_a_folder_a_registry_model_or_imagenet(registry, tmp_path):
+def test_from_names_a_folder_a_registry_model_or_imagenet_and_defaults_to_the_bundled_base(registry, tmp_path):
     from contract.errors import UserError
     from contract.registries import Registries
     from trainer.fit.workflow import resolve_start
 
     registries = Registries(tmp_path / "own", registry)
     assert resolve_start("imagenet", registries) is None
+    with pytest.raises(UserError, match="no bundled rgb2cloud-7scenes to start from"):
+        resolve_start(None, registries)  # the default: this bundled registry holds only tiny
+    assert (
+        resolve_start(None, Registries(tmp_path / "own", REPO / "weights")) == REPO / "weights/rgb2cloud-7scenes/0.9.0"
+    )
     assert resolve_start(str(registry / "tiny" / "0.1.0"), registries) == registry / "tiny" / "0.1.0"
     assert resolve_start("tiny", registries) == registry / "tiny" / "0.1.0"
     assert resolve_start("tiny:0.1.0", registries) == registry / "tiny" / "0.1.0"
