@@ -5,7 +5,6 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -13,6 +12,7 @@ from typing import Literal
 import numpy as np
 from PIL import Image
 
+from app.engine_choice import Timing, fastest, timings
 from app.settings import Settings
 from contract.card import (
     CARD_FILE,
@@ -60,7 +60,7 @@ class LoadedModel:
     #: Each candidate's timed runs on the check photo at load, by ``ENGINE PRECISION`` (``openvino fp32``).
     measured: dict[str, Timing] = field(default_factory=dict)
     #: Why each precision runs on its engine, where more than one engine could run it: the timings it was
-    #: chosen on and by how much (``_fastest``).
+    #: chosen on and by how much (``app.engine_choice.fastest``).
     chosen: dict[RunPrecision, str] = field(default_factory=dict)
     #: Why a candidate was left out where another engine serves its precision (``openvino int8``: its int8 graph
     #: disagrees with fp32 on this machine ...): what a precision ``unserved`` would have said, per engine.
@@ -146,25 +146,6 @@ CANDIDATES: dict[str, tuple[Engine, ...]] = {
     "openvino": ("openvino",),
     "torchscript": ("torchscript",),
 }
-#: Timed runs of each candidate on the check photo, after one warm-up run.
-TIMED_RUNS = 5
-#: How much faster than ONNX Runtime (the reference) another engine's median must be to be served instead, on
-#: top of every one of its runs being faster than every one of ONNX Runtime's.
-MARGIN = 0.05
-
-
-@dataclass(frozen=True)
-class Timing:
-    """One candidate's timed runs on the check photo, in ms: the median is its time, the range its noise."""
-
-    runs: tuple[float, ...]
-
-    @property
-    def median(self) -> float:
-        return float(np.median(self.runs))
-
-    def __str__(self) -> str:
-        return f"{self.median:.1f} ms ({min(self.runs):.1f}-{max(self.runs):.1f})"
 
 
 def load_version(folder: Path, settings: Settings) -> LoadedModel:
@@ -172,9 +153,9 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
 
     Every precision (fp32, bf16, int8) is put up on each engine the settings allow. Each candidate's depth
     on the check photo (the version's stored sample) is compared with ONNX Runtime fp32's, and one that
-    disagrees is not served; where more than one passes, each is timed there and the fastest kept, ONNX
-    Runtime unless another is ``MARGIN`` faster (what ``auto`` costs at load: one compile and a few runs per
-    candidate). bf16 is served only where the CPU has bf16 units, and only if it beats fp32. A version
+    disagrees is not served; where more than one passes, each is timed there and ONNX Runtime kept unless another
+    is faster beyond the timing's noise (``app.engine_choice``; what ``auto`` costs at load: one compile and a
+    few runs per candidate). bf16 is served only where the CPU has bf16 units, and only if it beats fp32. A version
     whose fp32 runs nowhere it is allowed to is refused.
     """
     try:
@@ -216,13 +197,12 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
             disagrees |= {precision} if "disagrees" in why else set()
             continue
         timed = len(passed) > 1 or precision == "bf16"
-        times, failed = _timings(passed, photo) if timed else (dict.fromkeys(passed, Timing((0.0,))), {})
+        times, failed = timings(passed, photo) if timed else (dict.fromkeys(passed, Timing((0.0,))), {})
         measured |= {f"{engine} {precision}": timing for engine, timing in times.items() if timed}
         if times:
-            engine, why = _fastest(times)
+            engine, because = fastest(times)
             chosen[precision] = (engine, passed[engine], times[engine].median)
-            if len(times) > 1:  # a choice between engines, said with its timings
-                why_chosen[precision] = why
+            why_chosen |= {precision: because} if len(times) > 1 else {}  # a choice between engines, and its times
             dropped |= {f"{other} {precision}": why for other, why in (reasons | failed).items()}
         else:
             unserved[precision] = "; ".join(failed.values())
@@ -331,57 +311,6 @@ def _candidates(
     return passed, reasons
 
 
-def _timings(
-    runners: dict[Engine, ExportedGenerator], photo: np.ndarray, clock: Callable[[], float] = time.perf_counter
-) -> tuple[dict[Engine, Timing], dict[Engine, str]]:
-    """Each runner's ``TIMED_RUNS`` runs on ``photo`` after a warm-up, one runner after another; and why each
-    that raised did.
-
-    Not in turns: ONNX Runtime's threads spin for a while after each call, and on a small machine the
-    call that follows one, whichever engine, would be timed against them.
-    """
-    times: dict[Engine, Timing] = {}
-    failed: dict[Engine, str] = {}
-    for engine, runner in runners.items():
-        runs_ms = []
-        try:
-            runner.predict_raw(photo)
-            for _ in range(TIMED_RUNS):
-                began = clock()
-                runner.predict_raw(photo)
-                runs_ms.append((clock() - began) * 1000)
-        except Exception as e:
-            failed[engine] = f"its run on {engine} failed while timed: {e}"
-            continue
-        times[engine] = Timing(tuple(runs_ms))
-    return times, failed
-
-
-def _fastest(times: dict[Engine, Timing]) -> tuple[Engine, str]:
-    """The engine a precision is served on, and why in the words the load log and ``/v1/models`` give.
-
-    ONNX Runtime, the reference, unless another engine ran faster in every timed run than ONNX Runtime did in
-    any, with a median ``MARGIN`` lower: a gap beyond the timing's own noise, so the choice between near
-    equals does not flip from one load to the next. Without ONNX Runtime, the lowest median.
-    """
-    best = min(times, key=lambda engine: times[engine].median)
-    others = ", ".join(f"{engine} {timing}" for engine, timing in times.items() if engine != best)
-    if len(times) == 1:
-        return best, f"{best} {times[best]}, the only engine timed"
-    if "onnxruntime" not in times:
-        return best, f"{best} {times[best]}, the fastest (against {others})"
-    reference = times["onnxruntime"]
-    if best == "onnxruntime":
-        return best, f"onnxruntime {reference}, the fastest (against {others})"
-    challenger = times[best]
-    gain = 1 - challenger.median / reference.median
-    if max(challenger.runs) < min(reference.runs) and gain >= MARGIN:
-        return best, f"{best} {challenger}, {gain:.0%} faster than onnxruntime {reference} in every run"
-    return "onnxruntime", (
-        f"onnxruntime {reference}: {best} {challenger} is not faster in every run by {MARGIN:.0%} or more"
-    )
-
-
 def _bf16_if_faster(
     chosen: dict[RunPrecision, tuple[Engine, ExportedGenerator, float]],
     unserved: dict[RunPrecision, str],
@@ -392,7 +321,7 @@ def _bf16_if_faster(
     refused."""
     engine, runner, fp32_ms = chosen["fp32"]
     if not fp32_ms:
-        times, failed = _timings({engine: runner}, photo)
+        times, failed = timings({engine: runner}, photo)
         if failed:
             raise ModelLoadError(f"{engine} fp32 fails when timed: {failed[engine]}")
         measured[f"{engine} fp32"] = times[engine]

@@ -162,15 +162,8 @@ def export(
 
 
 # fit's longer options, named here so that the command reads as its list of options.
-FitFrom = Annotated[
-    str | None,
-    typer.Option(
-        "--from",
-        help="where the generator starts: a published version folder, NAME[:VERSION] of a model in the "
-        "registries, or 'imagenet' (ImageNet's EfficientNet-Lite0 under a fresh U-Net decoder, the encoder "
-        "frozen) (default: the bundled rgb2cloud-7scenes)",
-    ),
-]
+FROM_HELP = "a version folder, NAME[:VERSION] of a registry model, or 'imagenet' (default: the bundled base)"
+FitFrom = Annotated[str | None, typer.Option("--from", help=FROM_HELP)]
 FitFormat = Annotated[
     str | None,
     typer.Option(help="folders|tum|7scenes|nyu|csv|rosbag|azurekinect|strayscanner|record3d (default: detected)"),

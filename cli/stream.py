@@ -158,14 +158,19 @@ def stream(
             typer.echo("stopped (Ctrl-C): what was written is complete", err=True)
             raise typer.Exit(130) from None
         finally:
-            try:
-                close_all(sinks, lambda line: typer.echo(line, err=True))
-            finally:  # what became of the frames, however the stream ended (a sink's shortfall once it closed)
-                if tally is not None:
-                    shortfall = "".join(sink.shortfall() for sink in sinks if hasattr(sink, "shortfall"))
-                    typer.echo(tally.summary() + shortfall)
+            close_and_tell(sinks, tally)
     if tally is not None and tally.skipped:
         raise typer.Exit(1)
+
+
+def close_and_tell(sinks: list[Sink], tally: Tally | None) -> None:
+    """Every sink closed (``close_all``), then the last line, however the stream ended: what became of the frames
+    (where it began), with each sink's shortfall, known once it has closed."""
+    try:
+        close_all(sinks, lambda line: typer.echo(line, err=True))
+    finally:
+        if tally is not None:
+            typer.echo(tally.summary() + "".join(sink.shortfall() for sink in sinks if hasattr(sink, "shortfall")))
 
 
 def chosen_outputs(

@@ -18,7 +18,8 @@ from conftest import REPO, SEVEN_SCENES, TUM_FRAME
 from PIL import Image
 
 import app.loading
-from app.loading import MARGIN, load_version
+from app.engine_choice import MARGIN
+from app.loading import load_version
 from app.settings import Settings
 from contract.card import load_card
 from contract.engines import bf16_units, onnx_runner, openvino_capabilities, runs
@@ -152,7 +153,7 @@ def test_auto_measures_both_engines_at_load_and_says_what_it_chose(reference):
             assert f"{engine} int8" in ms or served or "disagrees with fp32" in why, serving
             assert not (served and f"{engine} int8" in dropped)
         # OpenVINO replaces ONNX Runtime only when every one of its timed runs at load was faster than every one
-        # of ONNX Runtime's, and its median by MARGIN (app.loading._fastest): the load log and /v1/models say so.
+        # of ONNX Runtime's, and its median by MARGIN (app.engine_choice.fastest): the load log and /v1/models say so.
         spans = serving["measured_range_ms"]
         beyond = spans["openvino fp32"][1] < spans["onnxruntime fp32"][0]
         clear = beyond and ms["openvino fp32"] <= ms["onnxruntime fp32"] * (1 - MARGIN)
@@ -313,32 +314,30 @@ def test_openvino_s_output_is_its_own_array_not_the_request_s_buffer():
 
 
 def test_auto_keeps_onnx_runtime_unless_another_engine_is_faster_beyond_the_noise():
-    from app.loading import Timing, _fastest
+    from app.engine_choice import Timing, fastest
 
     def timing(*runs: float) -> Timing:
         return Timing(runs)
 
     # The AVX2 EPYC's near-equals (issue 69): OpenVINO's median 6% lower, but its runs overlap ONNX Runtime's.
-    engine, why = _fastest({"onnxruntime": timing(79, 84, 78, 80, 86), "openvino": timing(74, 80, 73, 75, 79)})
+    engine, why = fastest({"onnxruntime": timing(79, 84, 78, 80, 86), "openvino": timing(74, 80, 73, 75, 79)})
     assert engine == "onnxruntime" and "openvino 75.0 ms (73.0-80.0) is not faster in every run" in why
     # Faster in every run, by more than MARGIN: served, with its margin.
-    engine, why = _fastest({"onnxruntime": timing(79, 84, 78, 80, 86), "openvino": timing(60, 62, 61, 63, 60)})
+    engine, why = fastest({"onnxruntime": timing(79, 84, 78, 80, 86), "openvino": timing(60, 62, 61, 63, 60)})
     assert (
         engine == "openvino"
         and why == "openvino 61.0 ms (60.0-63.0), 24% faster than onnxruntime 80.0 ms (78.0-86.0) in every run"
     )
     # Faster in every run but by less than MARGIN: a steady machine, a gap too small to be worth a second engine.
-    engine, _ = _fastest(
-        {"onnxruntime": timing(70, 70.5, 71, 70.2, 70.8), "openvino": timing(68, 68.5, 69, 68.2, 68.8)}
-    )
+    engine, _ = fastest({"onnxruntime": timing(70, 70.5, 71, 70.2, 70.8), "openvino": timing(68, 68.5, 69, 68.2, 68.8)})
     assert engine == "onnxruntime"
-    assert _fastest({"onnxruntime": timing(70, 71), "openvino": timing(90, 91)})[0] == "onnxruntime"
-    assert _fastest({"openvino": timing(90, 91), "torchscript": timing(95, 99)})[0] == "openvino"
+    assert fastest({"onnxruntime": timing(70, 71), "openvino": timing(90, 91)})[0] == "onnxruntime"
+    assert fastest({"openvino": timing(90, 91), "torchscript": timing(95, 99)})[0] == "openvino"
 
 
 def test_each_candidate_is_timed_after_a_warm_up_on_its_own_runs():
-    """``_timings`` with a fake clock: each runner's scripted durations, the warm-up left out."""
-    from app.loading import TIMED_RUNS, _timings
+    """``timings`` with a fake clock: each runner's scripted durations, the warm-up left out."""
+    from app.engine_choice import TIMED_RUNS, timings
 
     now = [0.0]
 
@@ -354,7 +353,7 @@ def test_each_candidate_is_timed_after_a_warm_up_on_its_own_runs():
             raise RuntimeError("no kernel for this CPU")
 
     runs = [0.080 + i / 1000 for i in range(TIMED_RUNS)]
-    times, failed = _timings(
+    times, failed = timings(
         {"onnxruntime": Scripted([5.0, *runs]), "openvino": Broken()}, np.zeros((4, 4, 3), np.uint8), lambda: now[0]
     )
     assert times["onnxruntime"].runs == pytest.approx([r * 1000 for r in runs])  # the 5 s warm-up is not a run

@@ -221,7 +221,7 @@ def test_a_fit_from_imagenet_renders_views_into_its_budget(registry, tmp_path):
 def test_from_names_a_folder_a_registry_model_or_imagenet_and_defaults_to_the_bundled_base(registry, tmp_path):
     from contract.errors import UserError
     from contract.registries import Registries
-    from trainer.fit.workflow import resolve_start
+    from trainer.fit.start import resolve_start
 
     registries = Registries(tmp_path / "own", registry)
     assert resolve_start("imagenet", registries) is None

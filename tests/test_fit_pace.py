@@ -206,7 +206,7 @@ def paced_run(tmp_path, step_seconds, validation_seconds: float, plan_validation
 @pytest.mark.parametrize("slow_share", [0.1, 0.2])
 def test_a_slow_start_is_forgotten_however_long_it_lasts(tmp_path, slow_share):
     """Steps 3x slower than planned for the first 10% or 20% of the time, then as planned: the rate over the
-    later half of the steps leaves the slow ones behind, and training ends at 97% of its share or later (the old
+    later two thirds of the steps leave the slow ones behind, and training ends at 97% of its share or later (the old
     window kept them to the end and stopped at 93% and 91%), on its last step, with the planned validations."""
     ended, deadline, step, validations, pacer, lines = paced_run(
         tmp_path, lambda now: 3.0 if now < slow_share * 1000 else 1.0, 2.0, 5 * 2.0

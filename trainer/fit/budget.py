@@ -21,6 +21,7 @@ import torch
 
 from contract.errors import UserError
 from trainer.config import OptimConfig, RunConfig
+from trainer.data.loader import training_loader
 from trainer.data.sources import open_source
 from trainer.data.transforms import resize_frame
 from trainer.devices import Distributed, pick_device
@@ -28,7 +29,6 @@ from trainer.gan import Autocast, build_networks, gan_step
 from trainer.inference import EagerGenerator, InferenceGraph
 from trainer.losses import GANLoss
 from trainer.quantize import CALIBRATION_FRAMES
-from trainer.train import training_loader
 
 #: Runs timed after one warm-up run; their median is the plan's figure.
 MEASURED_RUNS = 3
@@ -226,9 +226,9 @@ class Pacer:
     """Re-plans a fit's steps from the rate they really run at, so training fills the time the plan gave it.
 
     Called after each step (``trainer.train.Revise``) with the seconds the steps took and the validations done
-    (how many, and how long they took). Every so often it measures the rate over the later half of the steps
-    so far: a window that grows, so a noisy machine or a checkpoint does not swing the plan to and fro, and
-    that forgets a slow start (a GPU's first steps, a busy machine) however long it lasted. Where the steps
+    (how many, and how long they took). Every so often it measures the rate over the later two thirds of the
+    steps so far: a window that grows, so a noisy machine or a checkpoint does not swing the plan to and fro,
+    and that forgets a slow start (a GPU's first steps, a busy machine) however long it lasted. Where the steps
     left at that rate would end the training more than ``REVISE_TOLERANCE`` early or late, with the
     validations left at their measured length (the plan's estimate until one is measured), it sets a new step
     count, its learning-rate decay, checkpoints, and validations at the count the plan made, tells
@@ -266,7 +266,7 @@ class Pacer:
         if not due or since_look < (1 if settled else REVISE_MIN_STEPS):
             return None
         self.looked = (now, step)
-        since = min(step - 1, step - (step - first) // 2)  # the later half of the steps so far, one at least
+        since = min(step - 1, step - (step - first) * 2 // 3)  # the later two thirds of the steps so far
         rate = (busy_s - self.busy[since]) / (step - since)
         validation_s = validating_s / validations if validations else self.validation_s
         left = max(1, VALIDATIONS - validations)  # the last step always validates

@@ -13,9 +13,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
-from contract.card import IMAGENET_START, DataRef, FitRecord, ModelCard, list_versions, load_card, next_version
+from contract.card import IMAGENET_START, DataRef, FitRecord, ModelCard, load_card, next_version
 from contract.errors import UserError
 from contract.geometry import ColourCamera
 from contract.registries import Registries
@@ -24,37 +23,20 @@ from contract.spec import GeneratorSpec
 from recordings.formats import ReadOptions, Recording, open_recording
 from recordings.frames import TRAINED_PIXELS, read_pair
 from recordings.manifest import ManifestReader, write_manifest
-from trainer.config import DataSource, RunConfig, apply_overrides, migrate_config
+from trainer.config import DataSource, RunConfig, apply_overrides
 from trainer.fit.budget import Pacer, Plan, Workload, measure_seconds, plan_training, resumed_deadline
 from trainer.fit.inspect import inspect_recording, readable
 from trainer.fit.progress import Progress, RunLock
 from trainer.fit.scoring import score_holdout
 from trainer.fit.split import MIN_PAIRS, Split, split_recording
+from trainer.fit.start import resolve_start, start_recipe
 from trainer.fit.state import FitState, new_fit_id, published_by, save_state
 from trainer.torch_support import require_supported_torch
 
-#: ``--from``'s default: the newest version of this bundled model, whose recipe (its data transforms, depth
-#: encoding and inference settings) every fit also builds on.
-BASE_MODEL = "rgb2cloud-7scenes"
-#: The recipe of ``--from imagenet``: no trained generator, but the U-Net on ImageNet's EfficientNet-Lite0 with
-#: the encoder and its BatchNorm statistics frozen, so only the decoder learns the room. It needs none of the
-#: bundled weights (no 7-Scenes licence, no TorchScript). At 10 minutes on 2 cores it scored 0.08-0.12 δ1 above a
-#: start from the kitchen model on an office no one here tuned for, and 0.024 below it on aims-lab over two seeds,
-#: so it is not the default (docs/research.md, "Views the recording never saw").
-IMAGENET_RECIPE = [
-    "generator.encoder=efficientnet-lite0",
-    "generator.ngf=48",
-    "generator.dropout=0",
-    "generator.n_downsample=5",
-    "generator.n_blocks=0",
-    "generator.dilations=[]",
-    "optim.encoder_lr_scale=0",
-]
 #: The masked L1's weight in a fit whose start was trained without one (the bundled recipe's).
 FIT_L1 = 100.0
 #: Adam's settings in a fit (the decay is planned from the budget).
 FIT_ADAM = {"lr": 0.0005, "beta1": 0.9}
-#: The service shrinks photos above this many pixels for the generator; fit trains at the same scale.
 
 
 @dataclass
@@ -89,47 +71,6 @@ class FitOptions:
     @property
     def run_dir(self) -> Path:
         return self.out or Path("runs") / "fit" / self.name
-
-
-def base_recipe(bundled: Path) -> Path:
-    """The newest bundled base model: the default start, and the recipe every fit builds on."""
-    versions = list_versions(bundled, BASE_MODEL)
-    if not versions:
-        raise UserError(
-            f"{bundled}: no bundled {BASE_MODEL} to start from or take fit's recipe from; pass --from a version "
-            "folder, or set RGB2CLOUD_BUNDLED_REGISTRY"
-        )
-    return bundled / BASE_MODEL / versions[-1]
-
-
-def resolve_start(start_from: str | None, registries: Registries) -> Path | None:
-    """``--from`` as the version folder a fit starts from (the bundled base where it is not given); None for
-    ``IMAGENET_START``."""
-    if start_from is None:
-        return base_recipe(registries.bundled)
-    if start_from == IMAGENET_START:
-        return None
-    if Path(start_from).is_dir():
-        return Path(start_from)
-    name, _, version = start_from.partition(":")
-    versions = list_versions(registries.owner(name) or registries.own, name)
-    if version in versions or (not version and versions):
-        return registries.folder(name, version or versions[-1])
-    raise UserError(
-        f"--from {start_from}: no such version folder or model (give '{IMAGENET_START}', a published version "
-        "folder, or NAME[:VERSION] of a model in the registries)"
-    )
-
-
-def start_config(start: Path) -> dict[str, Any]:
-    """The starting version's recipe: its training config with its generator spec and inference settings."""
-    card = load_card(start)
-    tree = migrate_config(card.training.config)
-    return {
-        **tree,
-        "generator": card.generator.model_dump(mode="json"),
-        "inference": card.inference.model_dump(mode="json"),
-    }
 
 
 def fit(options: FitOptions, echo: Callable[[str], None] = print) -> Path:
@@ -231,7 +172,7 @@ def _prepare(options: FitOptions, run: Path, progress: Progress, started: float)
 
 def _render_views(config: RunConfig, progress: Progress) -> list[str]:
     """The bank of rendered views (``data.views``), made before the plan so its minutes come out of the budget."""
-    from trainer.train import training_frames, training_views
+    from trainer.data.loader import training_frames, training_views
 
     if config.data.views.share == 0:
         return []
@@ -259,10 +200,7 @@ def _run_config(
     run: Path,
 ) -> RunConfig:
     """The starting model's recipe on this recording's split, at the scale the service will see it."""
-    if start:
-        tree = start_config(start)
-    else:
-        tree = apply_overrides(start_config(base_recipe(options.bundled)), IMAGENET_RECIPE)
+    tree = start_recipe(start, options.bundled)
     pairs = recording.pairs
     manifests = {
         part: write_manifest(run / f"{part}.csv", [pairs[i] for i in getattr(split, part)])
