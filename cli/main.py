@@ -162,7 +162,10 @@ def export(
 
 
 # fit's longer options, named here so that the command reads as its list of options.
-FROM_HELP = "a version folder, NAME[:VERSION] of a registry model, or 'imagenet' (default: the bundled base)"
+FROM_HELP = (
+    "a version folder, NAME[:VERSION] of a registry model, or 'imagenet' (ImageNet's Lite0 encoder, frozen, under a "
+    "fresh decoder) (default: the bundled base)"
+)
 FitFrom = Annotated[str | None, typer.Option("--from", help=FROM_HELP)]
 FitFormat = Annotated[
     str | None,

@@ -159,7 +159,10 @@ def publish_int8(
     graphs = folder / ONNX_FILE, folder / INT8_ONNX_FILE
     parity = worst_agreement([int8_parity(*graphs, photo, multiple, encoding) for photo in check_sizes(shown)])
     if (why := disagreement(parity)) is not None:
-        raise ParityError(f"{INT8_ONNX_FILE}: int8 depth is not fp32's on the parity image: {why}")
+        raise UserError(
+            f"{INT8_ONNX_FILE}: int8 depth is not fp32's on the parity image ({why}): this model does not keep its "
+            "depth in int8; publish it without --precision int8"
+        )
     Image.fromarray(shown).save(folder / INT8_SAMPLE_FILE)
     return Int8Graph(
         method="ONNX Runtime static QDQ: per-channel int8 weights in 7 bits (reduce_range: no saturation on CPUs "
