@@ -20,8 +20,8 @@ teach "blurry means near").
   of the median depth) is magnified up to 1.8x, so it stays as sharp as the frames, and a large
   recording's bank costs no more than a small one's.
 - The views are rendered once, before training, into a bank beside the run's checkpoints
-  (``views/``: PNG pairs and a CSV manifest): a step reads them as it reads any frame, so steps
-  do not slow, and ``--resume`` finds the bank already made.
+  (``views/``: PNG pairs and a CSV manifest): a step reads them from disk as it reads any frame, so no step
+  waits on a render, and ``--resume`` finds the bank already made.
 """
 
 from __future__ import annotations
