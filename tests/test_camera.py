@@ -25,7 +25,7 @@ from recordings.frames import read_depth_png
 from trainer.metrics import MetricAccumulator
 
 #: The bundled default: the newest bundled version, what `make serve` serves.
-BUNDLED = load_card(REPO / "weights" / "rgb2cloud-7scenes" / "0.9.0")
+BUNDLED = load_card(REPO / "weights" / "rgb2cloud-7scenes" / "0.9.1")
 MODEL = f"{BUNDLED.name}:{BUNDLED.version}"
 KITCHEN = Intrinsics(fx=530.0, fy=530.0, cx=314.5, cy=239.0, width=640, height=480)
 #: Every 15th test frame: ten views of the kitchen the model never trained on.

@@ -28,8 +28,8 @@ from harness.service import running_service
 from trainer.evaluate import load_predictor
 
 BUNDLED = REPO / "weights"
-VERSION = BUNDLED / "rgb2cloud-7scenes" / "0.9.0"
-MODEL = "rgb2cloud-7scenes:0.9.0"
+VERSION = BUNDLED / "rgb2cloud-7scenes" / "0.9.1"
+MODEL = "rgb2cloud-7scenes:0.9.1"
 #: Every engine and precision the bundled model ships, with why it cannot run on this CPU (None: it can).
 PATHS = [(e, p, runs(e, p)) for e in ("onnxruntime", "openvino") for p in ("fp32", "bf16", "int8")]
 NO_BF16 = f"this CPU has no bf16 units (OpenVINO offers {', '.join(openvino_capabilities())})"

@@ -228,7 +228,7 @@ def test_from_names_a_folder_a_registry_model_or_imagenet_and_defaults_to_the_bu
     with pytest.raises(UserError, match="no bundled rgb2cloud-7scenes to start from"):
         resolve_start(None, registries)  # the default: this bundled registry holds only tiny
     assert (
-        resolve_start(None, Registries(tmp_path / "own", REPO / "weights")) == REPO / "weights/rgb2cloud-7scenes/0.9.0"
+        resolve_start(None, Registries(tmp_path / "own", REPO / "weights")) == REPO / "weights/rgb2cloud-7scenes/0.9.1"
     )
     assert resolve_start(str(registry / "tiny" / "0.1.0"), registries) == registry / "tiny" / "0.1.0"
     assert resolve_start("tiny", registries) == registry / "tiny" / "0.1.0"

@@ -44,6 +44,22 @@ def test_an_older_version_still_loads_from_torchscript():
     assert weights.generator and weights.published == "rgb2cloud-7scenes 0.9.0"
 
 
+@pytest.mark.skipif(torch.__version__ != "2.13.0+cpu", reason="0.9.0's TorchScript loads under the torch that wrote it")
+def test_the_bundled_base_that_fit_starts_from_holds_0_9_0s_weights_without_torchscript(monkeypatch, tmp_path):
+    """0.9.1 is 0.9.0 published again with its weights in safetensors: fit's default start loads under a torch
+    that reads no TorchScript, and gives back 0.9.0's weights to the bit."""
+    from contract.registries import Registries
+    from trainer.fit.start import resolve_start
+
+    base = resolve_start(None, Registries(tmp_path / "own", REPO / "weights"))
+    assert base is not None and WEIGHTS_FILE in load_card(base).files
+    older = load_weights(BUNDLED_0_9_0).generator
+    refuse_torchscript(monkeypatch)
+    weights = load_weights(base)
+    assert weights.published == "rgb2cloud-7scenes 0.9.1" and set(weights.generator) == set(older)
+    assert all(torch.equal(weights.generator[key], older[key]) for key in older)
+
+
 def test_an_older_version_another_torch_cannot_read_is_refused_in_one_line_that_says_what_to_do(monkeypatch):
     refuse_torchscript(monkeypatch)
     with pytest.raises(UserError) as refused:

@@ -76,9 +76,9 @@ def test_each_frame_gets_the_depth_and_cloud_the_post_routes_give(service):
         ws.send(FRAMES[0])
         header, (depth_body, cloud_body) = receive(ws)
     assert header["type"] == "frame" and header["seq"] == 1 and header["skipped"] == 0
-    assert (header["model"], header["version"]) == ("rgb2cloud-7scenes", "0.9.0")
+    assert (header["model"], header["version"]) == ("rgb2cloud-7scenes", "0.9.1")
     assert header["intrinsics_source"] == "model" and header["engine"] == "onnxruntime"
-    assert {"decode", "inference", "encode", "backproject"} <= set(header["stages_ms"])
+    assert {"decode", "resample", "inference", "resample_back", "encode", "backproject"} <= set(header["stages_ms"])
     depth_entry, cloud_entry = header["payloads"]
     assert depth_entry == {"kind": "depth", "encoding": "raw16", "bytes": 640 * 480 * 2, "width": 640, "height": 480}
     assert cloud_entry["kind"] == "pointcloud" and cloud_entry["bytes"] == 15 * cloud_entry["points"]

@@ -105,7 +105,7 @@ def test_a_photo_gives_depth_and_a_point_cloud_to_orbit_and_download(browser, se
     assert page.eval_on_selector("#depth", "img => img.complete && img.naturalWidth") == 640  # the depth preview
     page.screenshot(path=ARTIFACTS / "2-result.png", full_page=True)
     facts = page.inner_text("#facts")
-    assert "rgb2cloud-7scenes 0.9.0" in facts and "inference" in facts and "from model" in facts
+    assert "rgb2cloud-7scenes 0.9.1" in facts and "inference" in facts and "from model" in facts
     points = int(facts.split("Points")[1].split()[0].replace(",", ""))
     assert points == 320 * 240  # stride 2 on a 640x480 photo: every depth is in range
 
