@@ -13,8 +13,8 @@ from app.imaging import decode_image, encode_colormap_png
 from app.loading import LoadedModel
 from app.temporal import TemporalFilter
 from contract.encodings import depth_metres, depth_millimetres, encode_depth_png, encode_ply
-from contract.geometry import Intrinsics, point_cloud
-from contract.resample import depth_at_photo
+from contract.geometry import point_cloud
+from contract.resample import depth_to_photo, to_model_camera
 from contract.runtime import RunPrecision
 
 
@@ -46,13 +46,6 @@ class Stopwatch:
         now = time.perf_counter()
         self.stages[name] = now - self._last
         self._last = now
-
-
-def infer(
-    model: LoadedModel, rgb: np.ndarray, camera: Intrinsics, max_pixels: int, precision: RunPrecision = "fp32"
-) -> tuple[np.ndarray, float]:
-    """Depth in metres at the photo's size by the one rescale rule (``contract.resample``), and the focal ratio."""
-    return depth_at_photo(lambda seen: model.predict_depth(seen, precision), rgb, camera, model.card.camera, max_pixels)
 
 
 @dataclass
@@ -92,8 +85,15 @@ def _photo_and_depth(
     height, width = photo.rgb.shape[:2]
     camera = photo_camera(model.card.camera, width, height, query, photo.exif_focal)
     precision = model.serving(settings.precision)
-    depth, ratio = infer(model, photo.rgb, camera.intrinsics, settings.inference_max_pixels, precision)
+    # The one rescale rule (contract.resample), a stage at a time: the photo to the model's focal length, the
+    # generator (to metres), and its depth back at the photo's pixels; either resample is nothing where the
+    # photo's camera is the model's.
+    seen, ratio = to_model_camera(photo.rgb, camera.intrinsics, model.card.camera, settings.inference_max_pixels)
+    watch.lap("resample")
+    depth = model.predict_depth(seen, precision)
     watch.lap("inference")
+    depth = depth_to_photo(depth, camera.intrinsics)
+    watch.lap("resample_back")
     return Inferred(photo.rgb, depth, camera, ratio, precision, settings.precision)
 
 

@@ -1,14 +1,17 @@
 """Stream benchmark: live depth over ``/v1/stream`` against back-to-back POST /depth, in one run.
 
     python bench/stream.py [--seconds 20] [--soak-frames 5000] [--threads 2]
-    python bench/stream.py --models rgb2cloud-7scenes:0.9.0 my-room [--registry DIR]   # models side by side
+    python bench/stream.py --models rgb2cloud-7scenes:0.9.1 my-room [--registry DIR]   # models side by side
+    python bench/stream.py --stages [--models ...] [--engine auto --precision auto]   # where a frame's time goes
 
-One service (the bundled default, ONNX Runtime fp32) on 127.0.0.1 answers every row; the client runs
-on the same machine. Frames are the 7-Scenes RedKitchen test frames 850-999, 640x480 JPEGs, cycled.
+One service (the bundled default; ONNX Runtime fp32 unless --engine and --precision say) on 127.0.0.1
+answers every row; the client runs on the same machine. Frames are the 7-Scenes RedKitchen test frames
+850-999, 640x480 JPEGs, cycled.
 "Camera" rows send at a camera's rate whatever the service does, as a webcam would; "lockstep" sends
 the next frame when the last is answered. Latency is from a frame's send to its answer's last byte.
 The per-frame work is the service's own decode + inference + encode (the stages each header reports).
 The flicker table plays frames 850-999 in order as a stream (``harness.flicker``, docs/quality.md).
+``--stages`` prints each model's stage table instead (``bench/stream_stages.py``).
 ``--models`` compares models instead (a fitted site model against the one it would replace): one service
 serves them all, and each answers a lockstep row and a camera row, in two rounds in opposite orders.
 """
@@ -27,6 +30,7 @@ import httpx
 import numpy as np
 from PIL import Image
 from stream_outputs import SEVEN_SCENES, TEST_FRAMES, sink_rows
+from stream_stages import stage_report
 
 from app.temporal import TemporalFilter
 from clients.stream import open_stream, raw_depth, receive
@@ -281,14 +285,20 @@ def main() -> None:
     parser.add_argument("--outputs-only", action="store_true", help="only the rows streaming a recording to outputs")
     parser.add_argument("--models", nargs="+", help="compare these models (NAME or NAME:VERSION) instead")
     parser.add_argument("--registry", type=Path, help="where the --models not bundled are published")
+    parser.add_argument("--stages", action="store_true", help="where each frame's time goes, stage by stage")
+    parser.add_argument("--engine", default="onnxruntime", help="the service's RGB2CLOUD_ENGINE")
+    parser.add_argument("--precision", default="fp32", help="the service's RGB2CLOUD_PRECISION")
     args = parser.parse_args()
     frames = jpegs()
     count = int(args.seconds * args.fps)
+    if args.stages:
+        stages(args, frames)
+        return
     if args.models:
         model_rows(args, frames, count)
         return
-    env = {"bundled_registry": BUNDLED_REGISTRY, "model": "rgb2cloud-7scenes", "engine": "onnxruntime"}
-    with running_service(threads=str(args.threads), precision="fp32", **env) as service:
+    env = {"bundled_registry": BUNDLED_REGISTRY, "model": "rgb2cloud-7scenes", "engine": args.engine}
+    with running_service(threads=str(args.threads), precision=args.precision, **env) as service:
         url = service.url
         lockstep(url, frames[:10], 2)  # warm
         outputs = closed(url, sink_rows(url))
@@ -311,15 +321,29 @@ def main() -> None:
     print(f"\n{outputs}")
 
 
+def stages(args: argparse.Namespace, frames: list[bytes]) -> None:
+    """The stage table of each of ``--models`` (the bundled default without it), one service serving them all."""
+    models = args.models or ["rgb2cloud-7scenes"]
+    env = {"bundled_registry": BUNDLED_REGISTRY, "model": models[0], "engine": args.engine}
+    env |= {"max_loaded": str(len(models))} | ({"registry": str(args.registry)} if args.registry else {})
+    print(f"Machine: {cpu_description()}; service threads {args.threads}; engine {args.engine}, precision ", end="")
+    print(f"{args.precision}; one lockstep stream, 7-Scenes frames 640x480 JPEG, {args.seconds:g} s a table\n")
+    with running_service(threads=str(args.threads), precision=args.precision, **env) as service:
+        for model in models:
+            lockstep(service.url, frames[:10], 2, model=model)  # loaded and warm before any table is timed
+        print(stage_report(service.url, frames, args.seconds, models, closed))
+
+
 def model_rows(args: argparse.Namespace, frames: list[bytes], count: int) -> None:
     """Each model's lockstep and camera rows from one service, in two rounds (A B, then B A) so that a machine
     growing busier or quieter shows as a difference between rounds, not between models."""
-    env = {"bundled_registry": BUNDLED_REGISTRY, "model": args.models[0], "engine": "onnxruntime"}
+    env = {"bundled_registry": BUNDLED_REGISTRY, "model": args.models[0], "engine": args.engine}
     env |= {"max_loaded": str(len(args.models))} | ({"registry": str(args.registry)} if args.registry else {})
-    print(f"Machine: {cpu_description()}; service threads {args.threads}; ONNX Runtime fp32; frames 640x480 JPEG\n")
+    print(f"Machine: {cpu_description()}; service threads {args.threads}; {args.engine} {args.precision}; ", end="")
+    print("frames 640x480 JPEG\n")
     print("| round | model | lockstep answers/s | p50 ms | p95 ms | generator ms | camera answers/s | p95 ms |")
     print("|---|---|---|---|---|---|---|---|")
-    with running_service(threads=str(args.threads), precision="fp32", **env) as service:
+    with running_service(threads=str(args.threads), precision=args.precision, **env) as service:
         url = service.url
         for model in args.models:
             lockstep(url, frames[:10], 2, model=model)  # loaded and warm before any row is timed

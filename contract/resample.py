@@ -78,6 +78,10 @@ def to_model_camera(
     rgb: np.ndarray, photo: Intrinsics, model: Intrinsics, max_pixels: int = INFERENCE_MAX_PIXELS
 ) -> tuple[np.ndarray, float]:
     """The photo (HxWx3 uint8, taken with ``photo``) resampled to the model's focal length, and the focal ratio."""
+    if (photo.width, photo.height) != (rgb.shape[1], rgb.shape[0]):
+        raise ValueError(
+            f"the photo is {rgb.shape[1]}x{rgb.shape[0]} but its camera is for {photo.width}x{photo.height}"
+        )
     size, ratio = generator_size(photo, model, max_pixels)
     if size == (rgb.shape[1], rgb.shape[0]):
         return rgb, ratio
@@ -91,13 +95,15 @@ def depth_at_photo(
 
     Also returns the focal ratio: 1 unless ``max_pixels`` shrank the photo further.
     """
-    if (photo.width, photo.height) != (rgb.shape[1], rgb.shape[0]):
-        raise ValueError(
-            f"the photo is {rgb.shape[1]}x{rgb.shape[0]} but its camera is for {photo.width}x{photo.height}"
-        )
     seen, ratio = to_model_camera(rgb, photo, model, max_pixels)
-    depth = np.asarray(run(seen), dtype=np.float32)
-    if seen is rgb:
-        return depth, ratio
+    return depth_to_photo(run(seen), photo), ratio
+
+
+def depth_to_photo(depth: np.ndarray, photo: Intrinsics) -> np.ndarray:
+    """The generator's depth (metres, at the size ``to_model_camera`` gave) back at the photo's own pixels:
+    the same array where the photo was shown as it is."""
+    depth = np.asarray(depth, dtype=np.float32)
+    if (depth.shape[1], depth.shape[0]) == (photo.width, photo.height):
+        return depth
     back = Image.fromarray(depth, mode="F").resize((photo.width, photo.height), Image.Resampling.BILINEAR)
-    return np.asarray(back, dtype=np.float32), ratio
+    return np.asarray(back, dtype=np.float32)

@@ -95,7 +95,10 @@ def test_depth_png_is_16_bit_millimetres_at_the_input_size(service, model):
 
 @pytest.mark.parametrize(
     ("route", "stages"),
-    [("/depth", ["decode", "inference", "encode"]), ("/pointcloud", ["decode", "inference", "backproject", "encode"])],
+    [
+        ("/depth", ["decode", "resample", "inference", "resample_back", "encode"]),
+        ("/pointcloud", ["decode", "resample", "inference", "resample_back", "backproject", "encode"]),
+    ],
 )
 def test_server_timing_names_each_stage_in_order(service, route, stages):
     start = time.perf_counter()
