@@ -58,7 +58,8 @@ FROM_0_9_0 = ("--from", str(REPO / "weights" / "rgb2cloud-7scenes" / "0.9.0"))
 # The pretrained U-Net base as `rgb2cloud train configs/rgb2cloud-7scenes-1.0.0.yaml` and `rgb2cloud export ...
 # --name rgb2cloud-7scenes-unet --version 1.0.0 --registry runs/weights` make it (docs/research.md): not bundled.
 FROM_1_0_0 = ("--from", str(REPO / "runs" / "weights" / "rgb2cloud-7scenes-unet" / "1.0.0"))
-# fit's default start (``--from imagenet``): 0.9.0's recipe with the base's U-Net on ImageNet's Lite0, said outright
+# The frozen ImageNet start (``--from imagenet``, measured against fit's default): 0.9.0's recipe with the base's
+# U-Net on ImageNet's Lite0, said outright
 # (the encoder, and what it fixes in the spec) so that each lever reads the same whatever the default becomes.
 FROM_IMAGENET = ("--from", "imagenet")
 UNET = (

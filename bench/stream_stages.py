@@ -26,6 +26,8 @@ CLIENT = ("send", "wait for the header", "read the payloads", "decode the depth"
 #: The service's stages, in the order it runs them (a stream's ``stages_ms``).
 SERVICE = ("queued", "decode", "resample", "inference", "resample_back", "encode")
 TRANSPORT = "transport and event loop"
+#: Stages a stream runs only when asked (``smooth``), and any the service adds after this table was written.
+OTHER = "other stages"
 
 
 def depth_metres(entry: dict, body: bytes) -> np.ndarray:
@@ -54,7 +56,9 @@ def frame_stages(url: str, frames: list[bytes], seconds: float, **options) -> li
             row["total"] = (marks[-1] - marks[0]) * 1000
             served = {"queued": header["queued_ms"]} | header["stages_ms"]
             row |= {name: served.get(name, 0.0) for name in SERVICE}
-            row[TRANSPORT] = row["wait for the header"] - sum(row[name] for name in SERVICE)
+            row[OTHER] = sum(ms for name, ms in served.items() if name not in SERVICE)
+            # Can be below zero: the service starts on a frame while the client's send still returns.
+            row[TRANSPORT] = row["wait for the header"] - sum(served.values())
             rows.append(row)
     return rows
 
@@ -73,6 +77,7 @@ def stage_table(label: str, rows: list[dict[str, float]]) -> str:
     lines.append(f"| client: send | {median('send'):.2f} | {median('send') / total:.0%} |")
     for name in SERVICE:
         lines.append(f"| service: {name} | {median(name):.2f} | {median(name) / total:.0%} |")
+    lines.append(f"| service: {OTHER} | {median(OTHER):.2f} | {median(OTHER) / total:.0%} |")
     lines.append(f"| {TRANSPORT} | {median(TRANSPORT):.2f} | {median(TRANSPORT) / total:.0%} |")
     for name in CLIENT[2:]:
         lines.append(f"| client: {name} | {median(name):.2f} | {median(name) / total:.0%} |")

@@ -63,17 +63,18 @@ class Fitting:
         from PIL import Image
 
         try:
-            return self._fitted(frame)
+            frame, (width, height), (sx, sy) = self._sized(frame)
         except (OSError, ValueError, Image.DecompressionBombError) as e:  # OSError: unidentified or truncated
             return Unreadable(frame.name, unreadable_reason(e))
+        return self._with_camera(frame, width, height, sx, sy)
 
-    def _fitted(self, frame: SourceFrame) -> Sending:
+    def _sized(self, frame: SourceFrame) -> tuple[SourceFrame, tuple[int, int], tuple[float, float]]:
+        """The photo within the stream's pixels (Pillow's work alone, whose errors make it unreadable): the frame
+        as sent, its size, and the scale of each axis."""
         import dataclasses
         import io
 
         from PIL import Image
-
-        from contract.geometry import resized_coordinate
 
         with Image.open(io.BytesIO(frame.data)) as im:
             width, height = im.size
@@ -95,6 +96,14 @@ class Fitting:
                 frame = dataclasses.replace(frame, data=out.getvalue())
                 sx, sy = size[0] / width, size[1] / height
                 width, height = size
+        return frame, (width, height), (sx, sy)
+
+    def _with_camera(self, frame: SourceFrame, width: int, height: int, sx: float, sy: float) -> Sending:
+        """The frame with its camera in the pixels of the photo sent."""
+        import dataclasses
+
+        from contract.geometry import resized_coordinate
+
         if frame.camera is not None:
             k = frame.camera.resized(width, height)
             return Sending(dataclasses.replace(frame, camera=k), {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy})

@@ -67,12 +67,14 @@ def run_stream(
     if first is None:
         return
     sending = itertools.chain([first], sending)
-    bar = tqdm(desc="stream", unit="frame", mininterval=1.0)
-    started = time.perf_counter()
     try:
         socket = open_stream(url, max_pixels=max_pixels, **stream_options(first, given))
     except InvalidHandshake as e:
         raise UserError(f"{url}: the service refused the stream: {e}") from None
+    except (OSError, TimeoutError) as e:  # nothing listening, no route, a handshake that never came
+        raise UserError(f"{url}: cannot open the stream: {e}") from None
+    bar = tqdm(desc="stream", unit="frame", mininterval=1.0)
+    started = time.perf_counter()
     writer = Writer(sinks)
     try:
         with socket:
@@ -90,9 +92,10 @@ def run_stream(
         failure = writer.finish()
         bar.close()
         tally.written = writer.written
-        if failure is not None:
-            if sys.exc_info()[1] is None:
-                raise failure
+        rising = sys.exc_info()[1]
+        if failure is not None and rising is None:
+            raise failure
+        if failure is not None and failure is not rising:  # the writer's own failure, re-raised by put, is said once
             say(f"also, an output failed: {failure}")  # the error on its way up is the one the user sees
 
 

@@ -152,13 +152,15 @@ def test_auto_measures_both_engines_at_load_and_says_what_it_chose(reference):
             why = dropped.get(f"{engine} int8", "not listed")
             assert f"{engine} int8" in ms or served or "disagrees with fp32" in why, serving
             assert not (served and f"{engine} int8" in dropped)
-        # OpenVINO replaces ONNX Runtime only when every one of its timed runs at load was faster than every one
-        # of ONNX Runtime's, and its median by MARGIN (app.engine_choice.fastest): the load log and /v1/models say so.
-        spans = serving["measured_range_ms"]
-        beyond = spans["openvino fp32"][1] < spans["onnxruntime fp32"][0]
-        clear = beyond and ms["openvino fp32"] <= ms["onnxruntime fp32"] * (1 - MARGIN)
-        assert serving["engines"]["fp32"] == ("openvino" if clear else "onnxruntime"), serving
-        assert serving["chosen"]["fp32"].startswith(serving["engines"]["fp32"]), serving["chosen"]
+        # Whichever engine won fp32, /v1/models says why in the choice's own words (app.engine_choice.fastest,
+        # whose rule the scripted-timing tests check): OpenVINO only as faster than ONNX Runtime in every run.
+        chosen, why = serving["engines"]["fp32"], serving["chosen"]["fp32"]
+        assert why.startswith(chosen), why
+        if chosen == "openvino":
+            assert "faster than onnxruntime" in why and why.endswith("in every run"), why
+        else:
+            kept = ("the fastest (against openvino", f"is not faster in every run by {MARGIN:.0%} or more")
+            assert any(words in why for words in kept), why
         if not bf16_units():
             assert serving["unserved"]["bf16"] == NO_BF16 and version["card"]["precisions"] == ["fp32", "int8"]
             asked = httpx.post(

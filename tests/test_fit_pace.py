@@ -224,12 +224,14 @@ def test_validations_slower_than_planned_are_measured_into_the_plan(tmp_path):
     assert validations == VALIDATIONS and step == pacer.config.train.steps, lines
 
 
-#: (step, steps, validations left, the steps they fall at), worked out by hand: train validates at every multiple
-#: of val_every and at its last step.
+#: (step, steps, validations left, the steps they fall at), worked out by hand: train re-plans after a step, then
+#: validates at it if it is a multiple of val_every, and at its last step.
 SPACINGS = [
     (0, 1000, 4, {250, 500, 750, 1000}),  # every 250
     (0, 225, 4, {57, 114, 171, 225}),  # every 57: 56 would add 224 beside 225
     (100, 1000, 3, {334, 668, 1000}),  # 300 to 333 each leave three multiples of their own before 1000
+    (100, 200, 4, {116, 145, 174, 200}),  # every 29: 25 to 28 would validate at the re-planning step 100 too
+    (196, 200, 3, {196, 198, 200}),  # every 2, the step itself among them
     (730, 866, 1, {866}),  # the last alone
     (0, 3, 4, {1, 2, 3}),  # too short for four: every step
 ]
@@ -238,4 +240,4 @@ SPACINGS = [
 @pytest.mark.parametrize(("step", "steps", "left", "expected"), SPACINGS)
 def test_validations_are_spaced_to_the_count_left(step, steps, left, expected):
     every = validation_every(step, steps, left)
-    assert {s for s in range(step + 1, steps + 1) if s % every == 0} | {steps} == expected, every
+    assert {s for s in range(max(step, 1), steps + 1) if s % every == 0} | {steps} == expected, every

@@ -553,6 +553,59 @@ def test_a_writer_failure_never_replaces_the_error_on_its_way_up(monkeypatch, ca
     assert tally.written == 0 and tally.summary() == "0 frames written"
 
 
+def test_a_writer_failure_met_by_the_next_answer_is_raised_once(monkeypatch, capsys):
+    """The first answer's write fails; the second answer meets that failure on its way to the writer: it is the
+    error raised, and it is not said a second time as "also"."""
+    import threading
+
+    import clients.stream as client
+    from cli.stream_loop import Tally, run_stream
+    from recordings.sources import Source, SourceFrame
+
+    failed = threading.Event()
+
+    class Full(FailingSink):
+        def write(self, frame) -> None:
+            failed.set()
+            super().write(frame)
+
+    class Socket:
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *error):
+            return False
+
+    def two_answers(socket, sending, encode, live, options_of=None):
+        items = iter(sending)
+        yield client.Answer(next(items), {"type": "frame", "skipped": 0, "payloads": []}, {})
+        assert failed.wait(10)
+        time.sleep(0.2)  # the writer's thread stores its failure right after the write raised
+        yield client.Answer(next(items), {"type": "frame", "skipped": 0, "payloads": []}, {})
+
+    monkeypatch.setattr(client, "open_stream", lambda url, **options: Socket())
+    monkeypatch.setattr(client, "answers", two_answers)
+    monkeypatch.setattr("clients.sinks.decoded", lambda frame, header, payloads: frame)
+    photo = KITCHEN[0].read_bytes()
+    frames = iter([SourceFrame("shot-0", 0, photo), SourceFrame("shot-1", 1, photo)])
+    with pytest.raises(OSError, match="no space left on device"):
+        run_stream(Source(frames, live=False), "http://127.0.0.1:9", [Full()], {}, {}, 10**8, Tally())
+    assert "also, an output failed" not in capsys.readouterr().err
+
+
+def test_a_stream_to_nothing_listening_is_one_line(capsys):
+    """A refused connection is a one-line error naming the URL, and no progress bar is left behind."""
+    from cli.stream_loop import Tally, run_stream
+    from contract.errors import UserError
+    from recordings.sources import Source, SourceFrame
+
+    frames = iter([SourceFrame("shot-0", 0, KITCHEN[0].read_bytes())])
+    with pytest.raises(UserError, match=r"^http://127.0.0.1:9: cannot open the stream: ") as refused:
+        run_stream(Source(frames, live=False), "http://127.0.0.1:9", [FailingSink()], {}, {}, 10**8, Tally())
+    assert "\n" not in str(refused.value)
+    assert "stream:" not in capsys.readouterr().err  # no bar was drawn
+
+
 def test_the_stream_client_refuses_a_message_larger_than_an_answer_can_be():
     """A URL that is no rgb2cloud stream cannot fill the client's memory: a message over what an answer to a
     photo of ``max_pixels`` holds (a point cloud of 15 bytes a pixel) closes the connection (1009)."""

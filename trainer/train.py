@@ -311,7 +311,9 @@ def _train(
         unit="step",
         dynamic_ncols=True,
     )
-    window_seconds, window_images, logged, validating, validations = 0.0, 0, {}, 0.0, 0
+    # A resumed run has validated at each multiple of its spacing so far: the pacer reserves only those left.
+    window_seconds, window_images, logged, validating = 0.0, 0, {}, 0.0
+    validations = run.step // config.train.val_every
     began = time.perf_counter()
     while run.step < config.train.steps:
         losses, seconds, images = train_step(run, run.step, next(batches), gan_loss)

@@ -15,8 +15,8 @@ teach "blurry means near").
   training loss never scores. Holes in the photo (disocclusions, the frame's edges after a move
   back, pixels the sensor had no depth for) are filled by OpenCV's inpainting, only so the
   network sees a photo without black holes.
-- A view is rendered at no more than twice the pixels the training transform keeps of its frame (the
-  recording's full resolution for 640x480): a view moved forward by the most ``forward`` allows (45%
+- A view is rendered at no more than twice the width and height the training transform keeps of its frame
+  (the recording's full resolution for 640x480): a view moved forward by the most ``forward`` allows (45%
   of the median depth) is magnified up to 1.8x, so it stays as sharp as the frames, and a large
   recording's bank costs no more than a small one's.
 - The views are rendered once, before training, into a bank beside the run's checkpoints

@@ -186,19 +186,25 @@ REVISE_SHARE, REVISE_MIN_STEPS, REVISE_TOLERANCE, SETTLED_SHARE, SETTLED_EARLY =
 
 
 def validation_every(step: int, steps: int, left: int) -> int:
-    """The ``val_every`` that gives exactly ``left`` validations after ``step`` in a run of ``steps`` (every step
+    """The ``val_every`` that gives ``left`` validations from ``step`` on in a run of ``steps`` (every step
     validated where fewer steps are left).
 
-    ``train`` validates at every multiple of ``val_every`` and at its last step, so ``left - 1`` multiples must
-    fall in ``(step, steps - 1]``: the first such spacing from an even one (the steps left over ``left``) up.
+    ``train`` re-plans after a step and then validates at it if it is a multiple of ``val_every``, and at its
+    last step, so ``left - 1`` multiples must fall in ``[step, steps - 1]``: the first such spacing from an even
+    one (the steps left over ``left``) up; where none gives that count exactly, the nearest count, fewer first.
     """
-    wanted = min(left - 1, steps - 1 - step)
+    first = max(step, 1)  # a plan made before the first step: train validates after steps, from step 1
+    wanted = min(left - 1, steps - first)
+
+    def count(every: int) -> int:
+        return (steps - 1) // every - (first - 1) // every
+
     if wanted <= 0:
         return steps + 1
     for every in range(max(1, (steps - step) // left), steps + 1):
-        if (steps - 1) // every - step // every == wanted:
+        if count(every) == wanted:
             return every
-    return steps + 1
+    return min(range(1, steps + 1), key=lambda every: (abs(count(every) - wanted), count(every) > wanted))
 
 
 def resumed_deadline(plan: Plan, step: int, now: float) -> float:
