@@ -325,7 +325,7 @@ def stages(args: argparse.Namespace, frames: list[bytes]) -> None:
     """The stage table of each of ``--models`` (the bundled default without it), one service serving them all."""
     models = args.models or ["rgb2cloud-7scenes"]
     env = {"bundled_registry": BUNDLED_REGISTRY, "model": models[0], "engine": args.engine}
-    env |= {"max_loaded": str(len(models))} | ({"registry": str(args.registry)} if args.registry else {})
+    env |= {"max_loaded": str(max(2, len(models)))} | ({"registry": str(args.registry)} if args.registry else {})
     print(f"Machine: {cpu_description()}; service threads {args.threads}; engine {args.engine}, precision ", end="")
     print(f"{args.precision}; one lockstep stream, 7-Scenes frames 640x480 JPEG, {args.seconds:g} s a table\n")
     with running_service(threads=str(args.threads), precision=args.precision, **env) as service:
