@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from harness.fitting import REPO, SITES, fit_once, report
+from trainer.fit.start import IMAGENET_RECIPE
 
 OUT = REPO / "runs" / "bench-levers"
 GAIN, COST = 0.01, 0.005
@@ -59,17 +60,9 @@ FROM_0_9_0 = ("--from", str(REPO / "weights" / "rgb2cloud-7scenes" / "0.9.0"))
 # --name rgb2cloud-7scenes-unet --version 1.0.0 --registry runs/weights` make it (docs/research.md): not bundled.
 FROM_1_0_0 = ("--from", str(REPO / "runs" / "weights" / "rgb2cloud-7scenes-unet" / "1.0.0"))
 # The frozen ImageNet start (``--from imagenet``, measured against fit's default): 0.9.0's recipe with the base's
-# U-Net on ImageNet's Lite0, said outright
-# (the encoder, and what it fixes in the spec) so that each lever reads the same whatever the default becomes.
+# U-Net on ImageNet's Lite0; UNET is that start's generator (trainer.fit.start's recipe without its frozen encoder).
 FROM_IMAGENET = ("--from", "imagenet")
-UNET = (
-    "generator.encoder=efficientnet-lite0",
-    "generator.ngf=48",
-    "generator.dropout=0",
-    "generator.n_downsample=5",
-    "generator.n_blocks=0",
-    "generator.dilations=[]",
-)
+UNET = tuple(option for option in IMAGENET_RECIPE if option.startswith("generator."))
 #: Fits from 0.9.0 at 0.8.1's 10-minute plan on an AMD EPYC with 2 cores: docs/quality.md, "Fits from it".
 FITS_FROM_0_9_0 = {
     "aims-lab": {"steps": 513, "delta1": 0.813, "rel": 0.199},
