@@ -144,6 +144,16 @@ LEVERS = {
             "from-0-9-0",
             FROM_0_9_0,
         ),
+        # Issue 68, 3: with neither start nor views kept, the loss, against today's default.
+        Lever(
+            "silog",
+            "speed",
+            ("loss.silog=100", "loss.l1_depth=0"),
+            "the scale-invariant log loss (SILog, lambda 0.85: part of each image's scale kept) in place of the "
+            "masked L1, at the L1's weight",
+            "from-0-9-0",
+            FROM_0_9_0,
+        ),
         Lever(
             "slow-encoder",
             "speed",

@@ -209,3 +209,44 @@ def test_the_upsamplers_that_start_free_of_the_checkerboard():
         assert y.shape == (1, 4, 32, 32)
         inside = y[interior]
         assert torch.allclose(inside, inside[..., :1, :1].expand_as(inside), atol=1e-6) == stays_flat, kind
+
+
+def test_silog_worked_out_by_hand():
+    """Image 1: a constant error c = 0.2 on its valid pixels gives |c| sqrt(1 - lambda); image 2: errors +0.5 and
+    -0.5 (mean 0) give 0.5 whatever lambda; a pixel outside the mask and an image with none valid count for
+    nothing."""
+    from trainer.losses import silog
+
+    real = torch.zeros(3, 1, 1, 3)
+    fake = torch.tensor([[0.2, 0.2, 9.0], [0.5, -0.5, 9.0], [9.0, 9.0, 9.0]]).reshape(3, 1, 1, 3)
+    valid = torch.tensor([[1, 1, 0], [1, 1, 0], [0, 0, 0]], dtype=torch.bool).reshape(3, 1, 1, 3)
+    lam = 0.85
+    expected = (0.2 * (1 - lam) ** 0.5 + 0.5) / 2
+    assert silog(fake, real, valid, lam).item() == pytest.approx(expected, rel=1e-5)
+    # lambda 0 is the RMSE of the log error; lambda 1 forgives image 1's scale entirely.
+    assert silog(fake, real, valid, 0.0).item() == pytest.approx((0.2 + 0.5) / 2, rel=1e-5)
+    assert silog(fake, real, valid, 1.0).item() == pytest.approx((0.0 + 0.5) / 2, abs=1e-4)
+
+
+def test_silog_alone_trains_the_generator_without_the_discriminator(tmp_path):
+    """``loss.silog`` with no other term: one step reports it alone, moves the generator, and leaves D untouched."""
+    from conftest import tiny_config
+
+    from trainer.config import LossConfig, RunConfig
+    from trainer.gan import Autocast, build_networks, gan_step
+
+    config = RunConfig.model_validate(tiny_config(tmp_path))
+    generator, discriminator, opt_g, opt_d = build_networks(config, torch.device("cpu"))
+    weights = [p.detach().clone() for p in generator.parameters()]
+    discriminator.forward = None  # calling it would fail
+    h, w = config.data.transform.size
+    batch = {"rgb": torch.rand(2, 3, h, w), "depth": torch.rand(2, 1, h, w), "valid": torch.ones(2, 1, h, w)}
+    loss = LossConfig(gan=0, feature_matching=0, silog=100)
+    scaler = torch.amp.GradScaler("cpu", enabled=False)
+    losses = gan_step(
+        generator, discriminator, (opt_g, opt_d), scaler, GANLoss("lsgan"), loss, batch, Autocast(False, torch.bfloat16)
+    )
+    assert set(losses) == {"G_silog"} and losses["G_silog"].item() > 0
+    assert any(not torch.equal(a, b) for a, b in zip(weights, generator.parameters(), strict=True))
+    with pytest.raises(ValueError, match="nothing would be learned"):
+        LossConfig(gan=0, feature_matching=0)

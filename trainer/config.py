@@ -44,6 +44,12 @@ class LossConfig(Strict):
     gan: float = Field(1.0, ge=0, description="weight of the cGAN term (the paper's 1)")
     feature_matching: float = Field(10.0, ge=0, description="mu in the paper")
     l1_depth: float = Field(0.0, ge=0, description="beyond the paper, opt-in: masked L1 between encoded depths")
+    silog: float = Field(
+        0.0, ge=0, description="beyond the paper, opt-in: the scale-invariant log loss (SILog) on encoded log depth"
+    )
+    silog_lambda: float = Field(
+        0.85, ge=0, le=1, description="SILog's lambda: 0 is the log RMSE, 1 ignores each image's scale entirely"
+    )
 
     @property
     def adversarial(self) -> bool:
@@ -52,8 +58,8 @@ class LossConfig(Strict):
 
     @model_validator(mode="after")
     def _something_to_learn(self) -> LossConfig:
-        if not self.adversarial and self.l1_depth == 0:
-            raise ValueError("loss: gan, feature_matching and l1_depth are all 0; nothing would be learned")
+        if not self.adversarial and self.l1_depth == 0 and self.silog == 0:
+            raise ValueError("loss: gan, feature_matching, l1_depth and silog are all 0; nothing would be learned")
         return self
 
 

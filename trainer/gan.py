@@ -16,7 +16,7 @@ from torch import nn
 
 from trainer.config import LossConfig, RunConfig
 from trainer.efficientnet import load_imagenet_encoder
-from trainer.losses import GANLoss, feature_matching, fill_holes, masked_l1, patch_weights
+from trainer.losses import GANLoss, feature_matching, fill_holes, masked_l1, patch_weights, silog
 from trainer.networks import MultiscaleDiscriminator, UNetGenerator, build_generator
 
 
@@ -136,6 +136,9 @@ def gan_step(
         if loss.l1_depth > 0:
             losses["G_l1"] = masked_l1(fake, real, valid)
             loss_g = loss_g + loss.l1_depth * losses["G_l1"]
+        if loss.silog > 0:
+            losses["G_silog"] = silog(fake, real, valid, loss.silog_lambda)
+            loss_g = loss_g + loss.silog * losses["G_silog"]
     opt_g.zero_grad(set_to_none=True)
     scaler.scale(loss_g).backward()
     scaler.step(opt_g)

@@ -89,6 +89,20 @@ def feature_matching(fake: Features, real: Features, weights: list[list[torch.Te
     return total
 
 
+def silog(fake: torch.Tensor, real: torch.Tensor, valid: torch.Tensor, lam: float) -> torch.Tensor:
+    """The scale-invariant log loss (Eigen et al. 2014, as BTS and AdaBins train with it), per image then averaged:
+    sqrt(mean(d^2) - lam * mean(d)^2) over its valid pixels, ``d`` the difference of encoded depths. With the
+    ``log`` encoding that is log depth times a constant, so ``lam`` below 1 keeps part of the metric scale an
+    image's mean error carries. An image without a valid pixel adds nothing."""
+    d = (fake.float() - real.float()) * valid.float()
+    count = valid.float().flatten(1).sum(1)
+    mean = d.flatten(1).sum(1) / count.clamp(min=1)
+    square = (d**2).flatten(1).sum(1) / count.clamp(min=1)
+    per_image = torch.sqrt((square - lam * mean**2).clamp(min=1e-8))
+    seen = count > 0
+    return (per_image * seen).sum() / seen.sum().clamp(min=1)
+
+
 def masked_l1(fake: torch.Tensor, real: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """Mean absolute error over valid pixels only (an opt-in term beyond the paper)."""
     return _weighted_mean((fake.float() - real.float()).abs(), valid.float())

@@ -236,7 +236,8 @@ def _run_config(
         **tree["loss"],
         "gan": 0.0,
         "feature_matching": 0.0,
-        "l1_depth": tree["loss"].get("l1_depth") or FIT_L1,
+        # SILog in its place where asked for (``loss.silog``), else the masked L1.
+        "l1_depth": tree["loss"].get("l1_depth") or (0.0 if tree["loss"].get("silog") else FIT_L1),
     }
     # Adam as for any regression: pix2pix's lr 2e-4 and beta1 0.5 keep an adversarial game stable, and with
     # none to keep, 2.5x the rate with beta1 0.9 gained 0.013 δ1 on aims-lab and 0.009 on mosd-tabletop at
