@@ -343,7 +343,7 @@ def client(
 ) -> None:
     """Send images to a running service and save depth PNGs and/or PLY point clouds."""
     from cli.service import service_url
-    from clients.photos import ClientOptions, run
+    from clients.photos import ClientOptions, OutputTally, run
 
     kinds = [k for k, on in (("depth", depth), ("pointcloud", pointcloud)) if on]
     if not kinds:
@@ -358,11 +358,12 @@ def client(
         params=params,
         cloud_params={"stride": stride},
     )
-    failed = 0
+    tally = OutputTally()
     for image, outcome in run(source, kinds, out, options):
-        failed += outcome.startswith("error")
+        tally.add(outcome)
         typer.echo(f"{image}: {outcome}", err=outcome.startswith("error"))
-    if failed:
+    typer.echo(tally.summary(), err=bool(tally.failed))
+    if tally.failed:
         raise typer.Exit(1)
 
 

@@ -111,3 +111,31 @@ def _one(client: httpx.Client, image: Path, kind: str, target: Path, options: Cl
     partial.write_bytes(response.content)
     partial.replace(target)
     return f"wrote {target}"
+
+
+class OutputTally:
+    """The client's last line: outputs written, found already there, and failed, by why (a photo the service
+    could not read is one HTTP 4xx among them, and the batch went on past it)."""
+
+    def __init__(self) -> None:
+        self.written = self.existing = 0
+        self.failed: dict[str, int] = {}
+
+    def add(self, outcome: str) -> None:
+        if outcome.startswith("wrote"):
+            self.written += 1
+        elif outcome.startswith("skipped"):
+            self.existing += 1
+        else:  # "error: HTTP 415: ...", "error: cannot reach the service at URL (...)", "error: ReadTimeout: ..."
+            error = outcome.removeprefix("error: ")
+            why = "cannot reach the service" if error.startswith("cannot reach") else error.split(":")[0]
+            self.failed[why] = self.failed.get(why, 0) + 1
+
+    def summary(self) -> str:
+        parts = [f"{self.written} outputs written"]
+        if self.existing:
+            parts.append(f"{self.existing} already there")
+        if self.failed:
+            whys = ", ".join(f"{why}: {count}" for why, count in sorted(self.failed.items()))
+            parts.append(f"{sum(self.failed.values())} failed ({whys})")
+        return ", ".join(parts)
