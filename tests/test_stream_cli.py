@@ -7,6 +7,7 @@ depth from ``POST /depth`` of the same photo, points from ``POST /pointcloud``.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import math
 import os
@@ -527,20 +528,13 @@ def test_a_writer_failure_never_replaces_the_error_on_its_way_up(monkeypatch, ca
     from cli.stream_loop import Tally, run_stream
     from recordings.sources import Source, SourceFrame
 
-    class Socket:
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *error):
-            return False
-
     def one_answer(socket, sending, encode, live, options_of=None):
         item = next(iter(sending))
         yield client.Answer(item, {"type": "frame", "skipped": 0, "payloads": []}, {})
         if stream_breaks:
             raise ConnectionClosedError(None, None)
 
-    monkeypatch.setattr(client, "open_stream", lambda url, **options: Socket())
+    monkeypatch.setattr(client, "open_stream", lambda url, **options: contextlib.nullcontext())
     monkeypatch.setattr(client, "answers", one_answer)
     monkeypatch.setattr("clients.sinks.decoded", lambda frame, header, payloads: frame)  # no payloads to decode
     frames = iter([SourceFrame("shot-0", 0, KITCHEN[0].read_bytes())])
@@ -569,13 +563,6 @@ def test_a_writer_failure_met_by_the_next_answer_is_raised_once(monkeypatch, cap
             failed.set()
             super().write(frame)
 
-    class Socket:
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *error):
-            return False
-
     def two_answers(socket, sending, encode, live, options_of=None):
         items = iter(sending)
         yield client.Answer(next(items), {"type": "frame", "skipped": 0, "payloads": []}, {})
@@ -583,7 +570,7 @@ def test_a_writer_failure_met_by_the_next_answer_is_raised_once(monkeypatch, cap
         time.sleep(0.2)  # the writer's thread stores its failure right after the write raised
         yield client.Answer(next(items), {"type": "frame", "skipped": 0, "payloads": []}, {})
 
-    monkeypatch.setattr(client, "open_stream", lambda url, **options: Socket())
+    monkeypatch.setattr(client, "open_stream", lambda url, **options: contextlib.nullcontext())
     monkeypatch.setattr(client, "answers", two_answers)
     monkeypatch.setattr("clients.sinks.decoded", lambda frame, header, payloads: frame)
     photo = KITCHEN[0].read_bytes()
