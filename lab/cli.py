@@ -7,7 +7,8 @@ from typing import Annotated
 
 import typer
 
-from cli.main import (
+from cli.main import run_app
+from cli.options import (
     ColourCameraOption,
     Format,
     Frames,
@@ -16,7 +17,6 @@ from cli.main import (
     ModelArgument,
     Root,
     parse_colour_camera,
-    run_app,
 )
 
 app = typer.Typer(help="rgb2cloud-lab: research tooling for rgb2cloud models.", no_args_is_help=True)
