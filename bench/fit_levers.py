@@ -144,6 +144,24 @@ LEVERS = {
             "from-0-9-0",
             FROM_0_9_0,
         ),
+        # Issue 68, 4 and 5: the views' share and their forward reach, one at a time, against the better of
+        # rendered-views-on-0-9-0 and its start (the start: views lost on mosd-tabletop at both seeds).
+        Lever(
+            "views-quarter",
+            "speed",
+            ("data.views.share=0.25",),
+            "views-on-0-9-0's views in a quarter of each batch in place of half",
+            "from-0-9-0",
+            FROM_0_9_0,
+        ),
+        Lever(
+            "views-reach",
+            "speed",
+            ("data.views.share=0.5", "data.views.forward=0.7"),
+            "views-on-0-9-0's views moved forward by up to 70% of the frame's median depth in place of 45%",
+            "from-0-9-0",
+            FROM_0_9_0,
+        ),
         # Issue 68, 3: with neither start nor views kept, the loss, against today's default.
         Lever(
             "silog",
