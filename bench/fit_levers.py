@@ -145,7 +145,7 @@ LEVERS = {
             FROM_0_9_0,
         ),
         # Issue 68, 4 and 5: the views' share and their forward reach, one at a time, against the better of
-        # rendered-views-on-0-9-0 and its start (the start: views lost on mosd-tabletop at both seeds).
+        # views-on-0-9-0 and its start (the start: views lost on mosd-tabletop at both seeds).
         Lever(
             "views-quarter",
             "speed",
