@@ -36,6 +36,8 @@ class Load:
         self.versions: Counter[str] = Counter()
         self.latencies: list[float] = []
         self.done = 0
+        #: Answers cut off mid-way (the connection closed before the whole answer came), each sent again once.
+        self.cut = 0
         self._sent = 0
         self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._run)
@@ -55,11 +57,22 @@ class Load:
 
     def _one(self, client: httpx.Client) -> None:
         start = time.perf_counter()
-        try:
-            r = client.post("/depth", files={"image": ("p.png", self.photo)}, params=self.params)
-            status, version = str(r.status_code), r.headers.get("x-model-version", "")
-        except httpx.HTTPError as e:
-            status, version = type(e).__name__, ""
+        for attempt in range(2):
+            try:
+                r = client.post("/depth", files={"image": ("p.png", self.photo)}, params=self.params)
+                status, version = str(r.status_code), r.headers.get("x-model-version", "")
+            except httpx.RemoteProtocolError as e:
+                # The connection closed before the whole answer came: a replica killed while its answer was on
+                # its way out, which the balancer cannot send again once the client has part of it. Sent again
+                # once, as `rgb2cloud client` does, and counted.
+                status, version = type(e).__name__, ""
+                if attempt == 0:
+                    with self._lock:
+                        self.cut += 1
+                    continue
+            except httpx.HTTPError as e:
+                status, version = type(e).__name__, ""
+            break
         with self._lock:
             self.statuses[status] += 1
             self.versions[version] += 1
