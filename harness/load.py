@@ -1,7 +1,8 @@
 """A bounded load of ``POST /depth`` from client threads, counting what came back: for the fault tests.
 
 A balancer's faults (a replica killed, stopped or replaced mid-load) are judged by what the clients got:
-how many requests succeeded, with which status each failed, and which model version answered.
+how many requests succeeded, with which status each failed, which model version answered, and, where a
+replica is killed, how many answers were cut off on their way out and sent again.
 """
 
 from __future__ import annotations
@@ -19,6 +20,10 @@ class Load:
 
     With ``until``, the clients keep sending until that event is set too: a fault that takes longer than
     ``count`` requests (a rolling update on a fast CPU) is then always met by load, start to end.
+    With ``resend_cut``, a request whose answer is cut off (the connection closes before the whole answer
+    came: a replica killed while its answer was on its way out, which the balancer has committed to once
+    it has the answer's header) is sent again once, as ``rgb2cloud client`` does, and counted in ``cut``;
+    without it, that is a failure like any other.
     """
 
     def __init__(
@@ -29,14 +34,15 @@ class Load:
         photo: bytes,
         params: dict | None = None,
         until: threading.Event | None = None,
+        resend_cut: bool = False,
     ):
         self.url, self.count, self.clients, self.photo, self.params = url, count, clients, photo, params
-        self.until = until
+        self.until, self.resend_cut = until, resend_cut
         self.statuses: Counter[str] = Counter()
         self.versions: Counter[str] = Counter()
         self.latencies: list[float] = []
         self.done = 0
-        #: Answers cut off mid-way (the connection closed before the whole answer came), each sent again once.
+        #: Answers cut off on their way out and sent again (``resend_cut``).
         self.cut = 0
         self._sent = 0
         self._lock = threading.Lock()
@@ -62,11 +68,8 @@ class Load:
                 r = client.post("/depth", files={"image": ("p.png", self.photo)}, params=self.params)
                 status, version = str(r.status_code), r.headers.get("x-model-version", "")
             except httpx.RemoteProtocolError as e:
-                # The connection closed before the whole answer came: a replica killed while its answer was on
-                # its way out, which the balancer cannot send again once the client has part of it. Sent again
-                # once, as `rgb2cloud client` does, and counted.
                 status, version = type(e).__name__, ""
-                if attempt == 0:
+                if attempt == 0 and self.resend_cut:
                     with self._lock:
                         self.cut += 1
                     continue

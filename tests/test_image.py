@@ -225,7 +225,7 @@ def test_compose_loses_no_request_when_a_replica_goes(cluster, how: str, exit_co
     victim_ip = containers.podman(
         "inspect", "--format", "{{range .NetworkSettings.Networks}}{{.IPAddress}}{{end}}", victim
     ).stdout.strip()
-    load = Load(url, 90, 6, PHOTO.read_bytes()).start()
+    load = Load(url, 90, 6, PHOTO.read_bytes(), resend_cut=how == "kill").start()
     try:
         load.wait_for(20)
         containers.podman(how, victim)
@@ -239,6 +239,6 @@ def test_compose_loses_no_request_when_a_replica_goes(cluster, how: str, exit_co
         f"{load.cut} answers cut off and sent again by the client; exit {exit_code}."
     )
     assert load.failed == 0, load.statuses
-    assert how == "kill" or load.cut == 0  # SIGTERM drains: only a SIGKILL can cut an answer on its way out
+    assert load.cut <= 2  # at most the answers the victim's two workers (deploy/compose.yaml) were sending
     assert exit_code in exit_codes  # a stop that overran its grace period would be SIGKILLed: 137
     assert any(answered_by(line).startswith(f"{victim_ip}:") for line in balancer_log()[mark:])  # it had a share
