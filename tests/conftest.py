@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import struct
 import subprocess
 import sys
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -106,6 +108,17 @@ def export_args(checkpoint: Path, metrics: Path, registry: Path) -> list[str]:
         "--registry",
         str(registry),
     ]
+
+
+def png_header(width: int, height: int) -> bytes:
+    """A PNG of which only the header is written: Pillow reads its size, and refuses a bomb, on opening it,
+    and never reaches pixel data (there is none)."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IEND", b"")
 
 
 def save_png16(path: Path, array: np.ndarray) -> None:

@@ -10,7 +10,7 @@ import sys
 import httpx
 import numpy as np
 import pytest
-from conftest import REPO, TUM_FRAME, run_cli
+from conftest import REPO, TUM_FRAME, png_header, run_cli
 from PIL import Image
 from plyfile import PlyData
 
@@ -100,18 +100,6 @@ def test_a_concurrent_batch_against_a_saturated_service_completes_and_resumes(re
     assert 'route="/depth",status="503"' in metrics  # the batch really met a full service
 
 
-def png_header_only(width: int, height: int) -> bytes:
-    """A PNG that says it is ``width`` x ``height`` and holds no pixels: Pillow reads its size, never its data."""
-    import struct
-    import zlib
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-
-    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IEND", b"")
-
-
 def test_client_names_each_photo_the_service_cannot_read_goes_on_and_counts_them(registry, tmp_path):
     """Random bytes named .jpg, a JPEG cut off halfway and a photo over the service's pixel limit each get a line
     naming the file and why; the good photos after them are written; the last line counts both, and the exit is 1."""
@@ -119,7 +107,7 @@ def test_client_names_each_photo_the_service_cannot_read_goes_on_and_counts_them
     good = (photos / "photo0.jpg").read_bytes()
     (photos / "a-noise.jpg").write_bytes(np.random.default_rng(0).bytes(5000))
     (photos / "b-cut.jpg").write_bytes(good[: len(good) // 2])
-    (photos / "c-huge.png").write_bytes(png_header_only(30000, 30000))
+    (photos / "c-huge.png").write_bytes(png_header(30000, 30000))
     with running_service(registry=str(registry), threads="1") as running:
         command = [sys.executable, "-m", "cli", "client", str(photos), "-o", str(tmp_path / "out")]
         result = subprocess.run([*command, "--url", running.url], cwd=REPO, capture_output=True, text=True)

@@ -12,12 +12,10 @@ import io
 import math
 import os
 import signal
-import struct
 import subprocess
 import sys
 import threading
 import time
-import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -25,7 +23,7 @@ import av
 import httpx
 import numpy as np
 import pytest
-from conftest import REPO, SEVEN_SCENES
+from conftest import REPO, SEVEN_SCENES, png_header
 from PIL import ExifTags, Image
 from plyfile import PlyData
 from rosbags.highlevel import AnyReader
@@ -474,16 +472,6 @@ def test_every_output_is_closed_and_a_failure_to_close_never_hides_the_error_on_
         finally:
             close_all(sinks, said.append)
     assert all(sink.closed for sink in sinks) and said == ["also, an output failed to close: disk full"]
-
-
-def png_header(width: int, height: int) -> bytes:
-    """A PNG of which only the header is written: Pillow reads its size, and refuses a bomb, on opening it."""
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-
-    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IEND", b"")
 
 
 def test_unreadable_photos_are_named_and_skipped_and_the_stream_goes_on(service, tmp_path):
