@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from cli.options import REGISTRY_HELP, PrecisionOption, checked
+from cli.options import REGISTRY_HELP, PrecisionOption, checked, parse_area
 from recordings.frames import DEFAULT_MAX_FRAMES  # numpy and PIL only: the serving install has them
 
 # fit's longer options, named here so that the command reads as its list of options.
@@ -40,6 +40,13 @@ Register = Annotated[
 ]
 RecipeChanges = Annotated[
     list[str], typer.Option("--set", "-s", help="change the start's recipe, e.g. -s loss.l1_depth=50 (repeatable)")
+]
+Pixels = Annotated[
+    str,
+    typer.Option(
+        help="the size the model serves photos at, WxH (its area is what counts): every photo is resampled to it, "
+        "so fewer pixels run faster and see less detail",
+    ),
 ]
 Steps = Annotated[
     int | None,
@@ -81,6 +88,7 @@ def fit(
     set_: RecipeChanges = [],  # noqa: B006
     steps: Steps = None,
     precision: PrecisionOption = "fp32",
+    pixels: Pixels = "640x480",
 ) -> None:
     """Fit a model of your space from a short RGB-D recording, score it honestly, and publish it."""
     from app.settings import Settings
@@ -121,6 +129,7 @@ def fit(
         overrides=set_,
         steps=steps,
         precision=checked("--precision", precision, "fp32", "int8"),
+        pixels=parse_area("--pixels", pixels),
     )
     try:
         run(options, typer.echo)

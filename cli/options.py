@@ -54,6 +54,14 @@ MaxDepth = Annotated[float, typer.Option(help="valid ground truth up to (m)")]
 REGISTRY_HELP = "registry to publish into (default: $RGB2CLOUD_REGISTRY, else ~/.local/share/rgb2cloud/models)"
 
 
+def parse_area(option: str, text: str) -> int:
+    """A ``WxH`` size's area in pixels, or a one-line error."""
+    width, _, height = text.lower().partition("x")
+    if not (width.isdigit() and height.isdigit() and int(width) > 0 and int(height) > 0):
+        raise typer.BadParameter(f"{option} {text!r}: expected WIDTHxHEIGHT in pixels, e.g. 320x240")
+    return int(width) * int(height)
+
+
 def parse_colour_camera(text: str, option: str = "--colour-camera") -> ColourCamera:
     """A colour camera option as YAML flow, the way a data source's ``colour_camera`` is written."""
     from contract.geometry import ColourCamera

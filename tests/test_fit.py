@@ -285,6 +285,30 @@ def test_ctrl_c_before_the_first_checkpoint_is_continued_by_the_hint_it_prints(r
     assert load_card(tmp_path / "registry" / "my-room" / "0.1.0").training.steps == 8
 
 
+@pytest.mark.slow
+def test_pixels_sets_the_camera_a_model_trains_and_serves_at(registry, tmp_path):
+    """``--pixels`` for live: a 160x120 recording fitted at 80x60 trains at that camera and its card names it,
+    so the service resamples every photo to it; a size the generator cannot work at is one line."""
+    data = write_recording(tmp_path / "rec", 24, open3d=False)
+    args = [*fit_args(data, tmp_path, registry / "tiny" / "0.1.0"), "--steps", "2"]
+    run_cli(*args, "--pixels", "80x60")
+    card = load_card(tmp_path / "registry" / "my-room" / "0.1.0")
+    recorded = read_intrinsics_json(data / "intrinsics.json")  # 160x120, fx 131.25, cx 79.75 (pixel centres)
+    assert (card.camera.width, card.camera.height) == (80, 60)
+    assert card.camera.fx == pytest.approx(recorded.fx * 0.5) and card.camera.cx == pytest.approx(39.625)
+    data_config = card.training.config["data"]
+    # tiny works at half its input (work_scale 2) in multiples of 4: 40x30 at the working scale, cropped to 40x28.
+    assert data_config["val_scale"] == 0.5 and data_config["transform"]["size"] == [28, 40]
+    assert data_config["transform"]["scale"] == pytest.approx([0.25, 0.275])
+    assert "--pixels 16x12: a 160x120 recording at 0.10 is too small" in refused(
+        *fit_args(data, tmp_path, registry / "tiny" / "0.1.0"), "--out", str(tmp_path / "small"), "--pixels", "16x12"
+    )
+    wrong = subprocess.run(
+        [sys.executable, "-m", "cli", *args, "--pixels", "320"], cwd=REPO, capture_output=True, text=True
+    )
+    assert wrong.returncode == 2 and "expected WIDTHxHEIGHT in pixels" in wrong.stderr
+
+
 def test_ctrl_c_before_training_hints_a_fresh_start(tmp_path):
     from trainer.fit.state import interrupted_hint
 

@@ -32,6 +32,7 @@ from trainer.fit.split import MIN_PAIRS, Split, split_recording
 from trainer.fit.start import resolve_start, start_recipe
 from trainer.fit.state import FitState, new_fit_id, published_by, save_state
 from trainer.torch_support import require_supported_torch
+from trainer.train import model_camera
 
 #: The masked L1's weight in a fit whose start was trained without one (the bundled recipe's).
 FIT_L1 = 100.0
@@ -67,6 +68,9 @@ class FitOptions:
     registration: str = "auto"
     out: Path | None = None
     resume: bool = False
+    #: The most pixels the model sees a photo at, and so trains at: the service resamples every photo to the
+    #: camera this makes. Fewer run faster and see less detail (docs/benchmarks.md, "A model for live").
+    pixels: int = TRAINED_PIXELS
 
     @property
     def run_dir(self) -> Path:
@@ -141,7 +145,10 @@ def _prepare(options: FitOptions, run: Path, progress: Progress, started: float)
     report = found + checked
     start = resolve_start(options.start_from, Registries(options.registry, options.bundled))
     config = _run_config(options, recording, split, inspection.colour_camera, start, run)
-    report += _render_views(config, progress)
+    seen = model_camera(config)
+    camera = f"camera: the model sees every photo at {seen.width}x{seen.height}, fx {seen.fx:.1f} (--pixels)"
+    progress.say(camera)
+    report += [camera, *_render_views(config, progress)]
     progress.phase("measuring")
     step_s, predict_s = measure_seconds(config)
     radius = config.inference.median_radius
@@ -208,11 +215,16 @@ def _run_config(
     }
     source = {"format": "csv", "licence": options.licence, "colour_camera": colour.model_dump() if colour else None}
     height, width = read_pair(pairs[0]).depth.shape
-    scale = min(1.0, math.sqrt(TRAINED_PIXELS / (height * width)))  # what the service shrinks this camera's photos to
+    scale = min(1.0, math.sqrt(options.pixels / (height * width)))  # what the service shrinks this camera's photos to
     # The crop is a multiple of the generator's stride: of the generator the run trains, --set included.
     spec = GeneratorSpec.model_validate(apply_overrides(tree, options.overrides)["generator"])
     work, multiple = spec.work_scale, spec.core_multiple
     size = [int(height * scale / work) // multiple * multiple, int(width * scale / work) // multiple * multiple]
+    if min(size) < 2 * multiple:
+        raise UserError(
+            f"--pixels {options.pixels}: a {width}x{height} recording at {scale:.2f} is too small for the generator, "
+            f"whose working scale ({work}x) needs at least {2 * multiple} pixels a side"
+        )
     tree["data"] = {
         "train": [{**source, "root": str(manifests["train"])}],
         "val": [{**source, "root": str(manifests["selection"])}],
