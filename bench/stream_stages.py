@@ -37,9 +37,11 @@ def depth_metres(entry: dict, body: bytes) -> np.ndarray:
     return raw_depth(entry, body)
 
 
-def frame_stages(url: str, frames: list[bytes], seconds: float, **options) -> list[dict[str, float]]:
-    """One lockstep stream for ``seconds``: each frame's stages in ms, client's and service's, and its total."""
+def frame_stages(url: str, frames: list[bytes], seconds: float, **options) -> tuple[list[dict[str, float]], str]:
+    """One lockstep stream for ``seconds``: each frame's stages in ms, client's and service's, and its total;
+    and the engine and precision that served it (what ``auto`` chose)."""
     rows = []
+    served_by = ""
     with open_stream(url, output="depth", **options) as ws:
         start = time.perf_counter()
         while time.perf_counter() - start < seconds:
@@ -54,13 +56,14 @@ def frame_stages(url: str, frames: list[bytes], seconds: float, **options) -> li
             marks.append(time.perf_counter())
             row = {name: (marks[i + 1] - marks[i]) * 1000 for i, name in enumerate(CLIENT)}
             row["total"] = (marks[-1] - marks[0]) * 1000
+            served_by = f"{header['engine']} {header['precision']}"
             served = {"queued": header["queued_ms"]} | header["stages_ms"]
             row |= {name: served.get(name, 0.0) for name in SERVICE}
             row[OTHER] = sum(ms for name, ms in served.items() if name not in SERVICE)
             # Can be below zero: the service starts on a frame while the client's send still returns.
             row[TRANSPORT] = row["wait for the header"] - sum(served.values())
             rows.append(row)
-    return rows
+    return rows, served_by
 
 
 def stage_table(label: str, rows: list[dict[str, float]]) -> str:
@@ -94,7 +97,7 @@ def stage_report(
     tables = []
     for model in models:
         for encoding in ("png16", "raw16"):
-            rows = frame_stages(url, frames, seconds, model=model, depth_encoding=encoding)
+            rows, served_by = frame_stages(url, frames, seconds, model=model, depth_encoding=encoding)
             closed(url, None)
-            tables.append(stage_table(f"{model}, depth {encoding}", rows))
+            tables.append(stage_table(f"{model}, {served_by}, depth {encoding}", rows))
     return "\n\n".join(tables)
