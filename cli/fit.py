@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from cli.options import REGISTRY_HELP, PrecisionOption, checked, parse_area
+from cli.options import REGISTRY_HELP, PrecisionOption, checked, parse_size
 from recordings.frames import DEFAULT_MAX_FRAMES  # numpy and PIL only: the serving install has them
 
 # fit's longer options, named here so that the command reads as its list of options.
@@ -44,8 +44,8 @@ RecipeChanges = Annotated[
 Pixels = Annotated[
     str,
     typer.Option(
-        help="the size the model serves photos at, WxH (its area is what counts): every photo is resampled to it, "
-        "so fewer pixels run faster and see less detail",
+        help="the size the model learns and serves the recording's camera at, WxH; its area counts, the recording "
+        "keeps its shape: fewer pixels run faster and see less detail",
     ),
 ]
 Steps = Annotated[
@@ -129,7 +129,7 @@ def fit(
         overrides=set_,
         steps=steps,
         precision=checked("--precision", precision, "fp32", "int8"),
-        pixels=parse_area("--pixels", pixels),
+        pixels=parse_size("--pixels", pixels),
     )
     try:
         run(options, typer.echo)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -54,12 +55,12 @@ MaxDepth = Annotated[float, typer.Option(help="valid ground truth up to (m)")]
 REGISTRY_HELP = "registry to publish into (default: $RGB2CLOUD_REGISTRY, else ~/.local/share/rgb2cloud/models)"
 
 
-def parse_area(option: str, text: str) -> int:
-    """A ``WxH`` size's area in pixels, or a one-line error."""
-    width, _, height = text.lower().partition("x")
-    if not (width.isdigit() and height.isdigit() and int(width) > 0 and int(height) > 0):
+def parse_size(option: str, text: str) -> tuple[int, int]:
+    """A ``WxH`` size in pixels (``320x240``, ``320X240``), or a one-line error."""
+    found = re.fullmatch(r"(\d+)x(\d+)", text.strip().lower(), re.ASCII)
+    if found is None or 0 in (size := (int(found[1]), int(found[2]))):
         raise typer.BadParameter(f"{option} {text!r}: expected WIDTHxHEIGHT in pixels, e.g. 320x240")
-    return int(width) * int(height)
+    return size
 
 
 def parse_colour_camera(text: str, option: str = "--colour-camera") -> ColourCamera:

@@ -20,7 +20,8 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 #: Raw depth values that mean "no reading" in Kinect-style 16-bit PNGs.
 MISSING_RAW = (0, 65535)
 #: The pixels fit trains a recording at (the service's 640x480): larger recordings are scaled to it.
-TRAINED_PIXELS = 640 * 480
+TRAINED_SIZE = (640, 480)
+TRAINED_PIXELS = TRAINED_SIZE[0] * TRAINED_SIZE[1]
 #: How many frames of a long recording fit keeps by default, evenly spread. A 30-minute fit on 2 CPU cores
 #: trains about 1,650 steps of 4 views (docs/fit.md): about 6,600 views, so 600 frames are each seen about
 #: 11 times, and a frame beyond them would be seen a handful of times while costing its decode and write.

@@ -293,16 +293,20 @@ def test_pixels_sets_the_camera_a_model_trains_and_serves_at(registry, tmp_path)
     args = [*fit_args(data, tmp_path, registry / "tiny" / "0.1.0"), "--steps", "2"]
     run_cli(*args, "--pixels", "80x60")
     card = load_card(tmp_path / "registry" / "my-room" / "0.1.0")
-    recorded = read_intrinsics_json(data / "intrinsics.json")  # 160x120, fx 131.25, cx 79.75 (pixel centres)
+    recorded = read_intrinsics_json(data / "intrinsics.json")  # 160x120, fx 131.25, cx 79.5, cy 59.5
     assert (card.camera.width, card.camera.height) == (80, 60)
-    assert card.camera.fx == pytest.approx(recorded.fx * 0.5) and card.camera.cx == pytest.approx(39.625)
+    # Halved about pixel centres: (79.5 + 0.5) / 2 - 0.5.
+    assert card.camera.fx == pytest.approx(recorded.fx * 0.5) and (card.camera.cx, card.camera.cy) == (39.5, 29.5)
     data_config = card.training.config["data"]
     # tiny works at half its input (work_scale 2) in multiples of 4: 40x30 at the working scale, cropped to 40x28.
     assert data_config["val_scale"] == 0.5 and data_config["transform"]["size"] == [28, 40]
     assert data_config["transform"]["scale"] == pytest.approx([0.25, 0.275])
-    assert "--pixels 16x12: a 160x120 recording at 0.10 is too small" in refused(
-        *fit_args(data, tmp_path, registry / "tiny" / "0.1.0"), "--out", str(tmp_path / "small"), "--pixels", "16x12"
-    )
+    # 16x12 is a tenth of the recording a side: 8x6 at tiny's working scale (2x), 8x4 in its multiples of 4,
+    # where it needs two multiples (8) a side: 16 pixels a side at the model's camera.
+    elsewhere = ("--out", str(tmp_path / "small"))
+    small = refused(*fit_args(data, tmp_path, registry / "tiny" / "0.1.0"), *elsewhere, "--pixels", "16x12")
+    assert "--pixels 16x12: the model would see this 160x120 recording at 16x12" in small
+    assert small.endswith("its generator needs at least 16 pixels a side")
     wrong = subprocess.run(
         [sys.executable, "-m", "cli", *args, "--pixels", "320"], cwd=REPO, capture_output=True, text=True
     )

@@ -21,7 +21,7 @@ from contract.registries import Registries
 from contract.runtime import Precision
 from contract.spec import GeneratorSpec
 from recordings.formats import ReadOptions, Recording, open_recording
-from recordings.frames import TRAINED_PIXELS, read_pair
+from recordings.frames import TRAINED_SIZE, read_pair
 from recordings.manifest import ManifestReader, write_manifest
 from trainer.config import DataSource, RunConfig, apply_overrides
 from trainer.fit.budget import Pacer, Plan, Workload, measure_seconds, plan_training, resumed_deadline
@@ -68,9 +68,10 @@ class FitOptions:
     registration: str = "auto"
     out: Path | None = None
     resume: bool = False
-    #: The most pixels the model sees a photo at, and so trains at: the service resamples every photo to the
-    #: camera this makes. Fewer run faster and see less detail (docs/benchmarks.md, "A model for live").
-    pixels: int = TRAINED_PIXELS
+    #: The size whose area the recording's camera is scaled to (never up) for the model to learn and serve:
+    #: the card's camera, which the service resamples every photo to. Fewer pixels run faster and see less
+    #: detail (docs/benchmarks.md, "A model for live").
+    pixels: tuple[int, int] = TRAINED_SIZE
 
     @property
     def run_dir(self) -> Path:
@@ -215,15 +216,17 @@ def _run_config(
     }
     source = {"format": "csv", "licence": options.licence, "colour_camera": colour.model_dump() if colour else None}
     height, width = read_pair(pairs[0]).depth.shape
-    scale = min(1.0, math.sqrt(options.pixels / (height * width)))  # what the service shrinks this camera's photos to
+    area = options.pixels[0] * options.pixels[1]
+    scale = min(1.0, math.sqrt(area / (height * width)))  # what the service shrinks this camera's photos to
     # The crop is a multiple of the generator's stride: of the generator the run trains, --set included.
     spec = GeneratorSpec.model_validate(apply_overrides(tree, options.overrides)["generator"])
     work, multiple = spec.work_scale, spec.core_multiple
     size = [int(height * scale / work) // multiple * multiple, int(width * scale / work) // multiple * multiple]
     if min(size) < 2 * multiple:
+        asked = "x".join(map(str, options.pixels))
         raise UserError(
-            f"--pixels {options.pixels}: a {width}x{height} recording at {scale:.2f} is too small for the generator, "
-            f"whose working scale ({work}x) needs at least {2 * multiple} pixels a side"
+            f"--pixels {asked}: the model would see this {width}x{height} recording at {round(width * scale)}x"
+            f"{round(height * scale)}, and its generator needs at least {2 * multiple * work} pixels a side"
         )
     tree["data"] = {
         "train": [{**source, "root": str(manifests["train"])}],
