@@ -48,6 +48,14 @@ Pixels = Annotated[
         "keeps its shape: fewer pixels run faster and see less detail",
     ),
 ]
+MaxFrames = Annotated[
+    int,
+    typer.Option(
+        help="keep at most this many pairs, evenly spread, and write only those (0: all); "
+        "the default is about what a 30-minute CPU fit can use",
+        min=0,
+    ),
+]
 Steps = Annotated[
     int | None,
     typer.Option(help="train exactly this many steps, however long they take (default: the budget's)", min=1),
@@ -74,14 +82,7 @@ def fit(
     max_gap_ms: MaxGapMs = None,
     min_confidence: MinConfidence = None,
     every: Annotated[int, typer.Option(help="keep every Nth pair of a long recording", min=1)] = 1,
-    max_frames: Annotated[
-        int,
-        typer.Option(
-            help="keep at most this many pairs, evenly spread, and write only those (0: all); "
-            "the default is about what a 30-minute CPU fit can use",
-            min=0,
-        ),
-    ] = DEFAULT_MAX_FRAMES,
+    max_frames: MaxFrames = DEFAULT_MAX_FRAMES,
     register: Register = "auto",
     out: Annotated[Path | None, typer.Option(help="run folder (default runs/fit/NAME)")] = None,
     resume: Annotated[bool, typer.Option(help="continue an interrupted fit from its last checkpoint")] = False,

@@ -301,12 +301,12 @@ def test_pixels_sets_the_camera_a_model_trains_and_serves_at(registry, tmp_path)
     # tiny works at half its input (work_scale 2) in multiples of 4: 40x30 at the working scale, cropped to 40x28.
     assert data_config["val_scale"] == 0.5 and data_config["transform"]["size"] == [28, 40]
     assert data_config["transform"]["scale"] == pytest.approx([0.25, 0.275])
-    # 16x12 is a tenth of the recording a side: 8x6 at tiny's working scale (2x), 8x4 in its multiples of 4,
-    # where it needs two multiples (8) a side: 16 pixels a side at the model's camera.
+    # 8x6 is a twentieth of the recording a side: 4x3 at tiny's working scale (2x), 4x0 in its multiples of 4,
+    # where it needs one multiple a side: 8 pixels a side at the model's camera.
     elsewhere = ("--out", str(tmp_path / "small"))
-    small = refused(*fit_args(data, tmp_path, registry / "tiny" / "0.1.0"), *elsewhere, "--pixels", "16x12")
-    assert "--pixels 16x12: the model would see this 160x120 recording at 16x12" in small
-    assert small.endswith("its generator needs at least 16 pixels a side")
+    small = refused(*fit_args(data, tmp_path, registry / "tiny" / "0.1.0"), *elsewhere, "--pixels", "8x6")
+    assert "the model would see this 160x120 recording at 8x6 (--pixels 8x6)" in small
+    assert small.endswith("its generator needs at least 8 pixels a side")
     wrong = subprocess.run(
         [sys.executable, "-m", "cli", *args, "--pixels", "320"], cwd=REPO, capture_output=True, text=True
     )

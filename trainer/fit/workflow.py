@@ -222,11 +222,11 @@ def _run_config(
     spec = GeneratorSpec.model_validate(apply_overrides(tree, options.overrides)["generator"])
     work, multiple = spec.work_scale, spec.core_multiple
     size = [int(height * scale / work) // multiple * multiple, int(width * scale / work) // multiple * multiple]
-    if min(size) < 2 * multiple:
+    if min(size) < multiple:
         asked = "x".join(map(str, options.pixels))
         raise UserError(
-            f"--pixels {asked}: the model would see this {width}x{height} recording at {round(width * scale)}x"
-            f"{round(height * scale)}, and its generator needs at least {2 * multiple * work} pixels a side"
+            f"the model would see this {width}x{height} recording at {round(width * scale)}x{round(height * scale)} "
+            f"(--pixels {asked}), and its generator needs at least {multiple * work} pixels a side"
         )
     tree["data"] = {
         "train": [{**source, "root": str(manifests["train"])}],
