@@ -28,9 +28,9 @@ def main() -> None:
     from trainer.machine import cpu_description
 
     card = load_card(args.version)
-    if card.int8 is None or card.int8.sample is None:
+    if card.int8 is None or card.sample is None:
         raise SystemExit(f"{args.version}: no int8 graph and sample photo to measure on")
-    with Image.open(args.version / card.int8.sample) as im:
+    with Image.open(args.version / card.sample) as im:
         photos = check_sizes(np.asarray(im.convert("RGB")))
     files = {"fp32": ONNX_FILE, "bf16": ONNX_FILE, "int8": card.int8.file}
     decode, multiple = card.depth_encoding.decode, card.input_multiple

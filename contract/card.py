@@ -41,11 +41,11 @@ TORCHSCRIPT_FILE = "generator.torchscript.pt"
 #: The generator's weights alone (safetensors: tensors and names, no code), which training starts from.
 WEIGHTS_FILE = "generator.safetensors"
 INT8_ONNX_FILE = "generator.int8.onnx"
-#: The photo int8 and fp32 depth are compared on wherever an int8 version loads.
-INT8_SAMPLE_FILE = "int8-sample.png"
+#: The photo every engine and precision is checked against ONNX Runtime fp32 on, wherever a version loads.
+SAMPLE_FILE = "sample.png"
 SEMVER = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)(?:-([0-9A-Za-z.-]+))?$")
 NAME = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 #: The paper's six metrics, in its Table 2's order.
 PAPER_METRICS = ("rel", "rmse", "log10", "delta1", "delta2", "delta3")
 #: What every evaluation reports and a card records: the paper's metrics and the mean point-cloud RMSE.
@@ -157,11 +157,6 @@ class Int8Graph(BaseModel):
     frames_from: list[str] = Field(description="the training data they were spread over")
     fp32_nodes: list[str] = Field(description="nodes left in fp32 (the precision-sensitive ends)")
     parity: dict[str, float] = Field(description="int8 against fp32 depth on the parity image; see trainer.quantize")
-    sample: str | None = Field(
-        None,
-        description="the parity photo at the card camera's size, among the card's files: wherever the version "
-        "loads, int8 and fp32 depth are compared on it again (a CPU whose int8 arithmetic differs is caught there)",
-    )
 
 
 class Training(BaseModel):
@@ -198,6 +193,12 @@ class ModelCard(BaseModel):
     parity: dict[str, float] = Field(default_factory=dict, description="export vs eager max abs diff")
     int8: Int8Graph | None = Field(
         None, description="an int8 graph beside the fp32 one (``export --precision int8``); none: fp32 only"
+    )
+    sample: str | None = Field(
+        None,
+        description="the parity photo at the camera's size, among the card's files: wherever the version loads, "
+        "each engine and precision is compared with ONNX Runtime fp32 on it before it is served (a CPU whose "
+        "arithmetic differs is caught there); none in versions published before every export shipped one",
     )
     derived_from: str | None = Field(
         None,
@@ -257,7 +258,9 @@ def migrate_card(card: dict[str, Any]) -> dict[str, Any]:
     and ``depth_encoding`` say it), dropped in 3, and called a fit's starting version
     ``started_from``, now ``start_from`` as everywhere else.
 
-    Schema 4 added the optional ``int8`` graph; a schema-3 card reads as one without it.
+    Schema 4 added the optional ``int8`` graph; a schema-3 card reads as one without it. Its ``int8.sample``
+    (the photo int8 was checked on) is the card's ``sample`` since 5, when every export began to ship one: every
+    engine is checked on it.
     """
     if not isinstance(card, dict):
         raise ValueError("expected a JSON object")
@@ -279,6 +282,8 @@ def migrate_card(card: dict[str, Any]) -> dict[str, Any]:
         fit = (card.get("training") or {}).get("fit")
         if isinstance(fit, dict) and "started_from" in fit:
             fit["start_from"] = fit.pop("started_from")
+    if version <= 4 and isinstance(card.get("int8"), dict) and "sample" in card["int8"]:
+        card["sample"] = card["int8"].pop("sample")
     card["schema_version"] = SCHEMA_VERSION
     return card
 
@@ -304,7 +309,9 @@ def load_card(version_dir: Path) -> ModelCard:
 
 
 def verify_files(version_dir: Path, card: ModelCard) -> None:
-    """Check that every listed file exists with its recorded sha256."""
+    """Check that every listed file exists with its recorded sha256, and that the sample is one of them."""
+    if card.sample is not None and card.sample not in card.files:
+        raise CardError(f"{Path(version_dir) / CARD_FILE}: its sample {card.sample} is not among its files")
     for file_name, expected in card.files.items():
         path = Path(version_dir) / file_name
         if not path.is_file():

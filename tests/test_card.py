@@ -78,3 +78,13 @@ def test_a_schema_2_card_drops_its_unread_output_text_and_names_the_start_as_eve
         "training": {"fit": {"start_from": "weights/rgb2cloud-7scenes/0.8.1", "budget_min": 30.0}},
     }
     assert old["training"]["fit"]["started_from"]  # the input is untouched
+
+
+def test_a_schema_4_card_s_int8_sample_is_the_card_s_sample_and_its_files_still_verify():
+    folder = REPO / "weights" / "rgb2cloud-7scenes" / "0.9.1"
+    on_disk = json.loads((folder / "card.json").read_text())
+    assert on_disk["schema_version"] == 4 and on_disk["int8"]["sample"] == "int8-sample.png"  # never rewritten
+    card = load_card(folder)
+    verify_files(folder, card)
+    assert card.sample == "int8-sample.png" and "sample" not in card.int8.model_dump()
+    assert load_card(BUNDLED).sample is None  # published before any version shipped one

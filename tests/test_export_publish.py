@@ -15,6 +15,7 @@ from PIL import Image
 
 from contract.card import (
     ONNX_FILE,
+    SAMPLE_FILE,
     TORCHSCRIPT_FILE,
     WEIGHTS_FILE,
     CardError,
@@ -136,7 +137,9 @@ def test_export_publishes_a_complete_card_and_refuses_to_overwrite(trained_check
     folder = tmp_path / "registry" / "tiny" / "0.1.0"
     card = load_card(folder)
     verify_files(folder, card)
-    assert set(card.files) == {ONNX_FILE, TORCHSCRIPT_FILE, WEIGHTS_FILE}
+    assert set(card.files) == {ONNX_FILE, TORCHSCRIPT_FILE, WEIGHTS_FILE, SAMPLE_FILE} and card.sample == SAMPLE_FILE
+    with Image.open(folder / SAMPLE_FILE) as sample:  # the parity photo as the generator is shown it
+        assert sample.size == (card.camera.width, card.camera.height)
     assert card.generator.ngf == 8 and card.input_multiple == 8
     assert card.depth_encoding.kind == "log"
     # The camera the generator was trained at: 7-Scenes' 640x480 (fx 585, cx 320) at data.val_scale 0.2.

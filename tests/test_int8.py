@@ -18,8 +18,8 @@ from PIL import Image
 from contract.card import (
     CARD_FILE,
     INT8_ONNX_FILE,
-    INT8_SAMPLE_FILE,
     ONNX_FILE,
+    SAMPLE_FILE,
     TORCHSCRIPT_FILE,
     WEIGHTS_FILE,
     load_card,
@@ -31,7 +31,7 @@ from harness.service import running_service
 from trainer.quantize import int8_parity, quantize_generator
 
 PHOTO = (TUM_FRAME / "TUM_color.png").read_bytes()
-INT8_FILES = (ONNX_FILE, TORCHSCRIPT_FILE, INT8_ONNX_FILE, INT8_SAMPLE_FILE)
+INT8_FILES = (ONNX_FILE, TORCHSCRIPT_FILE, INT8_ONNX_FILE, SAMPLE_FILE)
 
 
 @pytest.fixture(scope="module")
@@ -56,9 +56,9 @@ def test_export_writes_an_int8_graph_beside_the_fp32_one_and_the_card_says_how(i
     registry, stdout = int8_registry
     version = registry / "tiny" / "0.1.0"
     card = load_card(version)
-    assert set(card.files) == {ONNX_FILE, TORCHSCRIPT_FILE, WEIGHTS_FILE, INT8_ONNX_FILE, INT8_SAMPLE_FILE}
-    assert card.int8 is not None and card.int8.sample == INT8_SAMPLE_FILE
-    with Image.open(version / INT8_SAMPLE_FILE) as sample:  # the parity photo, at the card camera's size
+    assert set(card.files) == {ONNX_FILE, TORCHSCRIPT_FILE, WEIGHTS_FILE, INT8_ONNX_FILE, SAMPLE_FILE}
+    assert card.sample == SAMPLE_FILE
+    with Image.open(version / SAMPLE_FILE) as sample:  # the parity photo, at the card camera's size
         assert sample.size == (card.camera.width, card.camera.height)
     for name, digest in card.files.items():
         assert sha256_file(version / name) == digest and f"{name}  sha256 {digest}" in stdout
@@ -148,7 +148,7 @@ def both(int8_registry, registry, tmp_path):
     publish(target, card, {f: with_int8 / f for f in INT8_FILES})
     plain = registry / "tiny" / "0.1.0"
     card = load_card(plain).model_copy(update={"name": "plain"})
-    publish(target, card, {f: plain / f for f in (ONNX_FILE, TORCHSCRIPT_FILE)})
+    publish(target, card, {f: plain / f for f in (ONNX_FILE, TORCHSCRIPT_FILE, SAMPLE_FILE)})
     return target
 
 

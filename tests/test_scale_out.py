@@ -27,7 +27,7 @@ from PIL import Image
 from websockets.exceptions import InvalidStatus
 
 from clients.stream import open_stream, receive
-from contract.card import ONNX_FILE, TORCHSCRIPT_FILE, load_card, publish
+from contract.card import load_card, publish
 from harness.load import Load
 from harness.service import ServiceProcess, free_port, resident_mb
 
@@ -176,7 +176,7 @@ def test_a_rolling_update_to_a_new_version_under_load(cluster, registry):
     replicas, balancer = cluster
     folder = registry / "tiny" / "0.1.0"
     card = load_card(folder).model_copy(update={"version": "0.2.0"})
-    publish(registry, card, {f: folder / f for f in (ONNX_FILE, TORCHSCRIPT_FILE)})
+    publish(registry, card, {f: folder / f for f in card.files})
     mark = balancer.lines()
     # The load runs from before the first replica stops until after the last one is replaced, however long
     # replacing takes on this CPU, and then for 40 requests more (all of which the new version answers).

@@ -25,8 +25,8 @@ from PIL import Image
 
 from contract.card import (
     INT8_ONNX_FILE,
-    INT8_SAMPLE_FILE,
     ONNX_FILE,
+    SAMPLE_FILE,
     TORCHSCRIPT_FILE,
     WEIGHTS_FILE,
     DataRef,
@@ -141,21 +141,19 @@ def publish_int8(
     sources: Sequence[DataSource],
     readers: Sequence[FrameReader],
     camera: Intrinsics,
-    image: np.ndarray,
+    shown: np.ndarray,
     multiple: int,
     encoding: DepthEncoding,
 ) -> Int8Graph:
     """Quantise ``folder``'s fp32 graph into ``INT8_ONNX_FILE`` beside it, check it, and describe it for the card.
 
     Calibration: ``CALIBRATION_FRAMES`` of the training frames, spread over them, at the card camera's
-    size; the parity image is shown at that size too, as the service shows photos, and ships as the
-    version's int8 sample: wherever the version loads, both graphs are compared on it again.
+    size; ``shown`` is the version's sample (the parity image at that size, as the service shows photos),
+    which wherever the version loads both graphs are compared on again.
     """
     photos = calibration_frames(readers, CALIBRATION_FRAMES, camera)
     int8 = folder / INT8_ONNX_FILE
     done = quantize_generator(folder / ONNX_FILE, int8, photos, multiple, CALIBRATION, FP32_NODES, QUANTISED_OPS)
-    # The parity photo has no camera of its own: it is taken to have the model's field of view.
-    shown, _ = to_model_camera(image, camera.resized(image.shape[1], image.shape[0]), camera, inference_max_pixels())
     graphs = folder / ONNX_FILE, folder / INT8_ONNX_FILE
     parity = worst_agreement([int8_parity(*graphs, photo, multiple, encoding) for photo in check_sizes(shown)])
     if (why := disagreement(parity)) is not None:
@@ -163,11 +161,9 @@ def publish_int8(
             f"{INT8_ONNX_FILE}: int8 depth is not fp32's on the parity image ({why}): this model does not keep its "
             "depth in int8; publish it without --precision int8"
         )
-    Image.fromarray(shown).save(folder / INT8_SAMPLE_FILE)
     return Int8Graph(
         method="ONNX Runtime static QDQ: per-channel int8 weights in 7 bits (reduce_range: no saturation on CPUs "
         "without VNNI), uint8 activations",
-        sample=INT8_SAMPLE_FILE,
         calibration=done.method,
         frames=done.frames,
         frames_from=[describe(source) for source in sources],
@@ -256,6 +252,9 @@ def export_and_publish(
     camera = weights.camera
     with Image.open(parity_image) as im:
         image = np.asarray(im.convert("RGB"))
+    # The version's sample: the parity photo as the service shows it to the generator. It has no camera of its
+    # own, so it is taken to have the model's field of view.
+    shown, _ = to_model_camera(image, camera.resized(image.shape[1], image.shape[0]), camera, inference_max_pixels())
 
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
@@ -263,12 +262,12 @@ def export_and_publish(
         export_torchscript(graph, folder / TORCHSCRIPT_FILE)
         export_weights(graph, folder / WEIGHTS_FILE)
         parity = check_parity(graph, folder, image)
-        files = {name: folder / name for name in (ONNX_FILE, TORCHSCRIPT_FILE, WEIGHTS_FILE)}
+        Image.fromarray(shown).save(folder / SAMPLE_FILE)
+        files = {name: folder / name for name in (ONNX_FILE, TORCHSCRIPT_FILE, WEIGHTS_FILE, SAMPLE_FILE)}
         int8 = None
         if precision == "int8":
-            int8 = publish_int8(folder, config.data.train, readers, camera, image, graph.input_multiple, config.depth)
+            int8 = publish_int8(folder, config.data.train, readers, camera, shown, graph.input_multiple, config.depth)
             files[INT8_ONNX_FILE] = folder / INT8_ONNX_FILE
-            files[INT8_SAMPLE_FILE] = folder / INT8_SAMPLE_FILE
         card = ModelCard(
             name=name,
             version=version,
@@ -292,6 +291,7 @@ def export_and_publish(
             trainer_commit=trainer_commit(),
             parity=parity,
             int8=int8,
+            sample=SAMPLE_FILE,
             derived_from=weights.published,
         )
         return publish(registry, card, files)
