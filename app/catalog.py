@@ -241,7 +241,7 @@ class ModelCatalog:
     @staticmethod
     def _serving(model: LoadedModel) -> dict[str, Any]:
         """How a loaded version runs here: each precision's engine and why it won, what auto serves, what was
-        measured at load (generator ms on the sample: the median, and the fastest and slowest run), how long its
+        measured at load (generator ms on the check photo: the median, and the fastest and slowest run), how long its
         load's checks and measurements took, why any precision is not served, and why any engine was left out of
         a precision another engine serves."""
         return {

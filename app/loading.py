@@ -152,11 +152,11 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
     """Verify (sha256, the card's input and output, config vs weights), build the runtimes, check and warm them.
 
     Every precision (fp32, bf16, int8) is put up on each engine the settings allow. Each candidate's depth
-    on the check photo (the version's stored sample) is compared with ONNX Runtime fp32's, and one that
-    disagrees is not served; where more than one passes, each is timed there and ONNX Runtime kept unless another
-    is faster beyond the timing's noise (``app.engine_choice``; what ``auto`` costs at load: one compile and a
-    few runs per candidate). bf16 is served only where the CPU has bf16 units, and only if it beats fp32. A version
-    whose fp32 runs nowhere it is allowed to is refused.
+    on the check photo (the version's sample, else ``stand_in_photo``) is compared with ONNX Runtime fp32's,
+    and one that disagrees is not served; where more than one passes, each is timed there and ONNX Runtime kept
+    unless another is faster beyond the timing's noise (``app.engine_choice``; what ``auto`` costs at load: one
+    compile and a few runs per candidate). bf16 is served only where the CPU has bf16 units, and only if it beats
+    fp32. A version whose fp32 runs nowhere it is allowed to is refused.
     """
     try:
         card = load_card(folder)
@@ -231,14 +231,13 @@ def load_version(folder: Path, settings: Settings) -> LoadedModel:
 
 
 def _warm_up(model: LoadedModel, photo: np.ndarray, files: dict[RunPrecision, Path]) -> None:
-    """One run of each served precision at the card's camera size: its output must be that size."""
-    camera = model.card.camera
+    """One run of each served precision on the check photo (the card camera's size): its output must be the
+    photo's size."""
+    height, width = photo.shape[:2]
     for precision in model.generators:
         depth = model.predict_depth(photo, precision)
-        if depth.shape != (camera.height, camera.width):
-            raise ModelLoadError(
-                f"{files[precision]}: warm-up returned {depth.shape} for a {camera.width}x{camera.height} input"
-            )
+        if depth.shape != (height, width):
+            raise ModelLoadError(f"{files[precision]}: warm-up returned {depth.shape} for a {width}x{height} input")
 
 
 def _graph_files(folder: Path, card: ModelCard, engine: str) -> dict[RunPrecision, Path]:
@@ -273,7 +272,7 @@ def _candidates(
 ) -> tuple[dict[Engine, ExportedGenerator], dict[Engine, str]]:
     """The engines that run ``precision`` here with the same depth as fp32's, and why each other one does not.
 
-    ``check`` is the photos (the sample at its size and at twice it), the reference fp32 depth on each,
+    ``check`` is the photos (the check photo at its size and at twice it), the reference fp32 depth on each,
     and the version's sample (None without one: then no reduced precision is served, since a made-up photo
     says little of how a real one's depth keeps in fewer bits); ``built`` holds runners already made (the
     reference), which are not made twice.
@@ -290,8 +289,8 @@ def _candidates(
             continue
         if precision != "fp32" and sample is None:
             reasons[engine] = (
-                f"this version ships no sample photo to check {precision} against fp32 on (`rgb2cloud export` "
-                "it again to add one)"
+                f"this version ships no sample photo to check {precision} against fp32 on (a version exported "
+                "from its folder with `rgb2cloud export` ships one)"
             )
             continue
         try:
@@ -304,7 +303,7 @@ def _candidates(
         try:
             depths = [card.depth_encoding.decode(runner.predict_raw(p, once=True)) for p in photos]
         except Exception as e:
-            reasons[engine] = f"its {precision} run on {engine} fails on the sample: {e}"
+            reasons[engine] = f"its {precision} run on {engine} fails on the check photo: {e}"
             continue
         parity = worst_agreement([depth_agreement(r, d) for r, d in zip(references, depths, strict=True)])
         if (why := disagreement(parity)) is None:
@@ -347,7 +346,8 @@ def _sample(folder: Path, card: ModelCard) -> np.ndarray | None:
 
 
 def stand_in_photo(height: int, width: int) -> np.ndarray:
-    """The check photo of a version without a sample: a fixed texture, smooth colour at an eighth of the size.
+    """The check photo of a version without a sample: smooth colour at an eighth of the size, the same on every
+    load (a seeded generator).
 
     Not a blank photo: on one, every instance norm divides a constant feature map by its near-zero spread, so
     two engines that agree on every real photo give depth 6% apart (ONNX Runtime and OpenVINO fp32, on each

@@ -41,6 +41,11 @@ def main() -> None:
     files = {"fp32": ONNX_FILE, "bf16": ONNX_FILE} | ({"int8": card.int8.file} if card.int8 else {})
     decode, multiple = card.depth_encoding.decode, card.input_multiple
     reference = onnx_runner("onnxruntime", args.version / ONNX_FILE, multiple, 0, "fp32")
+    checked = [
+        (name, seen, decode(reference.predict_raw(seen)))
+        for name, photo in shown.items()
+        for seen in check_sizes(photo)
+    ]
     print(f"Machine: {cpu_description()}. {card.name} {card.version}, against ONNX Runtime fp32.\n")
     within = f"within {SAME_DEPTH_WITHIN:.2f}x"
     print(f"| engine | precision | photo | size | lost | median rel | {within} | median ratio | verdict |")
@@ -53,13 +58,12 @@ def main() -> None:
                 print(f"| {engine} | {precision} | — | — | — | — | — | — | not here: {why} |")
                 continue
             runner = onnx_runner(engine, args.version / file, multiple, 0, precision)
-            for name, photo in shown.items():
-                for seen in check_sizes(photo):
-                    figures = depth_agreement(decode(reference.predict_raw(seen)), decode(runner.predict_raw(seen)))
-                    verdict = disagreement(figures) or "the same depth"
-                    size = f"{seen.shape[1]}x{seen.shape[0]}"
-                    cells = f"{figures['median_rel']:.2%} | {figures['within']:.1%} | {figures['median_ratio']:.3f}"
-                    print(f"| {engine} | {precision} | {name} | {size} | {figures['lost']:.2%} | {cells} | {verdict} |")
+            for name, seen, truth in checked:
+                figures = depth_agreement(truth, decode(runner.predict_raw(seen)))
+                verdict = disagreement(figures) or "the same depth"
+                size = f"{seen.shape[1]}x{seen.shape[0]}"
+                cells = f"{figures['median_rel']:.2%} | {figures['within']:.1%} | {figures['median_ratio']:.3f}"
+                print(f"| {engine} | {precision} | {name} | {size} | {figures['lost']:.2%} | {cells} | {verdict} |")
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ import os
 import re
 import shutil
 import tempfile
+from collections.abc import Iterable
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -309,9 +310,10 @@ def load_card(version_dir: Path) -> ModelCard:
 
 
 def verify_files(version_dir: Path, card: ModelCard) -> None:
-    """Check that every listed file exists with its recorded sha256, and that the sample is one of them."""
-    if card.sample is not None and card.sample not in card.files:
-        raise CardError(f"{Path(version_dir) / CARD_FILE}: its sample {card.sample} is not among its files")
+    """Check that every listed file exists with its recorded sha256, and that the sample and int8 graph the card
+    names are among them."""
+    if missing := _unlisted(card, card.files):
+        raise CardError(f"{Path(version_dir) / CARD_FILE}: it names files it does not list: {missing}")
     for file_name, expected in card.files.items():
         path = Path(version_dir) / file_name
         if not path.is_file():
@@ -321,15 +323,24 @@ def verify_files(version_dir: Path, card: ModelCard) -> None:
             raise CardError(f"{path}: sha256 {actual} does not match the card's {expected}")
 
 
+def _unlisted(card: ModelCard, files: Iterable[str]) -> dict[str, str]:
+    """The files the card names (its sample, its int8 graph) that are not among ``files``, by what they are."""
+    named = {"sample": card.sample, "int8 graph": card.int8.file if card.int8 else None}
+    return {what: file for what, file in named.items() if file is not None and file not in files}
+
+
 def publish(registry: Path, card: ModelCard, files: dict[str, Path]) -> Path:
     """Copy ``files`` into ``<registry>/<name>/<version>/`` with the card; never overwrite.
 
     The card's ``files`` digests are recomputed here from what was copied, so a
-    card can only ever describe the bytes beside it.
+    card can only ever describe the bytes beside it; a card that names a sample or
+    int8 graph not among ``files`` is refused, as every load would refuse it.
     """
     target = Path(registry) / card.name / card.version
     if target.exists():
         raise FileExistsError(f"{target} already exists: versions are immutable, publish a new one")
+    if missing := _unlisted(card, files):
+        raise CardError(f"{target}: the card names files it is not published with: {missing}")
     created = not target.parent.exists()
     target.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{card.version}.", dir=target.parent))

@@ -85,8 +85,8 @@ def agreement_line(parity: dict[str, float]) -> str:
 
 
 def check_sizes(photo: np.ndarray) -> list[np.ndarray]:
-    """The photo reduced precisions are checked on, at its own size and at twice it (bilinear): a graph may
-    differ only where the service runs it larger than the sample."""
+    """A check photo at its own size and at twice it (bilinear), where every engine and precision is compared
+    with ONNX Runtime fp32: a graph may differ only where the service runs it larger than the photo."""
     from PIL import Image
 
     height, width = photo.shape[:2]

@@ -8,7 +8,7 @@ import shutil
 import pytest
 from conftest import REPO
 
-from contract.card import SCHEMA_VERSION, CardError, load_card, migrate_card, verify_files
+from contract.card import SCHEMA_VERSION, CardError, load_card, migrate_card, publish, verify_files
 from contract.spec import GeneratorSpec, InferenceSettings
 
 BUNDLED = REPO / "weights" / "rgb2cloud-7scenes" / "0.8.0"
@@ -86,5 +86,20 @@ def test_a_schema_4_card_s_int8_sample_is_the_card_s_sample_and_its_files_still_
     assert on_disk["schema_version"] == 4 and on_disk["int8"]["sample"] == "int8-sample.png"  # never rewritten
     card = load_card(folder)
     verify_files(folder, card)
-    assert card.sample == "int8-sample.png" and "sample" not in card.int8.model_dump()
+    assert card.sample == "int8-sample.png"
     assert load_card(BUNDLED).sample is None  # published before any version shipped one
+
+
+def test_a_card_naming_a_sample_it_does_not_list_is_refused_at_publish_and_at_load(tmp_path):
+    folder = REPO / "weights" / "rgb2cloud-7scenes" / "0.9.1"
+    card = load_card(folder).model_copy(update={"name": "copy"})
+    files = {name: folder / name for name in card.files if name != card.sample}
+    with pytest.raises(CardError, match=r"names files it is not published with: \{'sample': 'int8-sample.png'\}"):
+        publish(tmp_path, card, files)
+    assert not (tmp_path / "copy").exists()  # nothing half-published
+    published = publish(tmp_path, card.model_copy(update={"sample": None}), files)
+    on_disk = json.loads((published / "card.json").read_text())
+    on_disk["sample"] = "int8-sample.png"  # a card edited by hand to name a file it does not list
+    (published / "card.json").write_text(json.dumps(on_disk))
+    with pytest.raises(CardError, match=r"names files it does not list: \{'sample': 'int8-sample.png'\}"):
+        verify_files(published, load_card(published))

@@ -198,7 +198,8 @@ def test_one_rule_says_which_registry_owns_a_name_and_an_empty_folder_owns_nothi
 
 
 def test_a_failed_first_publish_leaves_no_folder_that_would_hide_a_bundled_model(registry, tmp_path):
-    card = load_card(registry / "tiny" / "0.1.0").model_copy(update={"name": "kitchen"})
-    with pytest.raises(FileNotFoundError):
-        publish(tmp_path / "own", card, {ONNX_FILE: tmp_path / "missing.onnx"})
+    folder = registry / "tiny" / "0.1.0"
+    card = load_card(folder).model_copy(update={"name": "kitchen"})
+    with pytest.raises(FileNotFoundError):  # while copying, after the name's folder was made
+        publish(tmp_path / "own", card, {ONNX_FILE: tmp_path / "missing.onnx", card.sample: folder / card.sample})
     assert not (tmp_path / "own" / "kitchen").exists()

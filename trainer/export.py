@@ -40,7 +40,7 @@ from contract.card import (
 from contract.codec import INPUT_ENCODING, DepthEncoding
 from contract.errors import UserError
 from contract.geometry import Intrinsics
-from contract.resample import inference_max_pixels, to_model_camera
+from contract.resample import to_model_camera
 from contract.runtime import OnnxGenerator, Precision, check_sizes, disagreement, worst_agreement
 from recordings.frames import FrameReader
 from trainer.checkpoint import load_graph
@@ -252,9 +252,11 @@ def export_and_publish(
     camera = weights.camera
     with Image.open(parity_image) as im:
         image = np.asarray(im.convert("RGB"))
-    # The version's sample: the parity photo as the service shows it to the generator. It has no camera of its
-    # own, so it is taken to have the model's field of view.
-    shown, _ = to_model_camera(image, camera.resized(image.shape[1], image.shape[0]), camera, inference_max_pixels())
+    # The version's sample: the parity photo at the card camera's size, as the service shows a photo from that
+    # camera to the generator (every load checks and warms each engine on it there). It has no camera of its own,
+    # so it is taken to have the model's field of view.
+    at_camera = camera.width * camera.height
+    shown, _ = to_model_camera(image, camera.resized(image.shape[1], image.shape[0]), camera, at_camera)
 
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
