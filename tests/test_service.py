@@ -32,8 +32,14 @@ LIMIT = 2_000_000
 
 @pytest.fixture(scope="module")
 def service(registry):
+    """The service on ONNX Runtime, the reference: these tests hold its answers to ``model``'s depth to the
+    millimetre, and under auto each load picks its own engine by timing (tests/test_engines.py checks that)."""
     with running_service(
-        registry=str(registry), max_upload_bytes=str(LIMIT), threads="1", cors_origins=json.dumps([ALLOWED_ORIGIN])
+        registry=str(registry),
+        max_upload_bytes=str(LIMIT),
+        threads="1",
+        cors_origins=json.dumps([ALLOWED_ORIGIN]),
+        engine="onnxruntime",
     ) as running:
         url = running.url
         yield url
@@ -41,7 +47,9 @@ def service(registry):
 
 @pytest.fixture(scope="module")
 def model(registry):
-    return ModelCatalog(Settings(registry=registry, bundled_registry=NO_REGISTRY, threads=1)).load_default()
+    return ModelCatalog(
+        Settings(registry=registry, bundled_registry=NO_REGISTRY, threads=1, engine="onnxruntime")
+    ).load_default()
 
 
 def own_focal(model) -> dict[str, float]:
