@@ -9,8 +9,13 @@ import typer
 
 from cli.options import (
     ColourCameraOption,
+    Cx,
+    Cy,
+    DepthScale,
     Format,
     Frames,
+    Fx,
+    Fy,
     Inference,
     MaxDepth,
     MinDepth,
@@ -35,13 +40,24 @@ def evaluate(
     colour_camera: ColourCameraOption = None,
     precision: Annotated[str, typer.Option(help="fp32; bf16 (openvino, with bf16 units); int8 (its graph)")] = "fp32",
     engine: Annotated[str, typer.Option(help="onnxruntime (the reference) or openvino")] = "onnxruntime",
+    fx: Fx = None,
+    fy: Fy = None,
+    cx: Cx = None,
+    cy: Cy = None,
+    depth_scale: DepthScale = None,
 ) -> None:
     """Score a model with the paper's metrics and print the paper's table."""
+    from contract.errors import UserError
     from contract.spec import parse_inference_options
+    from recordings.folders import CameraFile
     from trainer.config import DataSource
     from trainer.evaluate import evaluate_source
 
-    source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file)
+    given = CameraFile(fx, fy, cx, cy, depth_scale)
+    camera = given if given != CameraFile() else None
+    if camera is not None and format != "folders":
+        raise UserError(f"--fx, --fy, --cx, --cy and --depth-scale describe a folders recording, not {format}")
+    source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file, camera=camera)
     colour = parse_colour_camera(colour_camera) if colour_camera else None
     changes, depth_range = parse_inference_options(inference), (min_depth, max_depth)
     table = evaluate_source(model, source, out, changes, depth_range, samples, colour, precision, engine)

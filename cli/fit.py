@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from cli.options import REGISTRY_HELP, PrecisionOption, checked, parse_size
+from cli.options import REGISTRY_HELP, Cx, Cy, DepthScale, Fx, Fy, PrecisionOption, checked, parse_size
 from recordings.frames import DEFAULT_MAX_FRAMES  # numpy and PIL only: the serving install has them
 
 # fit's longer options, named here so that the command reads as its list of options.
@@ -70,11 +70,11 @@ def fit(
     from_: FitFrom = None,
     registry: Annotated[Path | None, typer.Option(help=REGISTRY_HELP)] = None,
     format: FitFormat = None,
-    fx: Annotated[float | None, typer.Option(help="focal length x in pixels (overrides intrinsics.json)")] = None,
-    fy: Annotated[float | None, typer.Option(help="focal length y in pixels")] = None,
-    cx: Annotated[float | None, typer.Option(help="principal point x in pixels")] = None,
-    cy: Annotated[float | None, typer.Option(help="principal point y in pixels")] = None,
-    depth_scale: Annotated[float | None, typer.Option(help="raw depth units per metre (1000: millimetres)")] = None,
+    fx: Fx = None,
+    fy: Fy = None,
+    cx: Cx = None,
+    cy: Cy = None,
+    depth_scale: DepthScale = None,
     holdout: Holdout = None,
     gap: Gap = None,
     color_topic: Annotated[str | None, typer.Option(help="a bag's colour image topic (default: found)")] = None,

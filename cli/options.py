@@ -50,6 +50,12 @@ Root = Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)",
 Frames = Annotated[
     str | None, typer.Option(help="7scenes frame numbers, e.g. 850-999; other layouts: names, globs or index ranges")
 ]
+#: A folder recording's camera where its intrinsics.json lacks or mistakes it (fit and evaluate read it alike).
+Fx = Annotated[float | None, typer.Option(help="focal length x in pixels (overrides intrinsics.json)")]
+Fy = Annotated[float | None, typer.Option(help="focal length y in pixels")]
+Cx = Annotated[float | None, typer.Option(help="principal point x in pixels")]
+Cy = Annotated[float | None, typer.Option(help="principal point y in pixels")]
+DepthScale = Annotated[float | None, typer.Option(help="raw depth units per metre (1000: millimetres)")]
 MinDepth = Annotated[float, typer.Option(help="valid ground truth from (m)")]
 MaxDepth = Annotated[float, typer.Option(help="valid ground truth up to (m)")]
 REGISTRY_HELP = "registry to publish into (default: $RGB2CLOUD_REGISTRY, else ~/.local/share/rgb2cloud/models)"

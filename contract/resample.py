@@ -83,8 +83,14 @@ def to_model_camera(
             f"the photo is {rgb.shape[1]}x{rgb.shape[0]} but its camera is for {photo.width}x{photo.height}"
         )
     size, ratio = generator_size(photo, model, max_pixels)
-    if size == (rgb.shape[1], rgb.shape[0]):
+    height, width = rgb.shape[:2]
+    if size == (width, height):
         return rgb, ratio
+    factor = width // size[0]
+    if factor > 1 and (width, height) == (size[0] * factor, size[1] * factor):
+        # A whole factor: each output pixel is the mean of a factor x factor block, as a sensor with that
+        # many times fewer pixels would gather its light; the pixel centres fall where bilinear's do.
+        return np.asarray(Image.fromarray(rgb).reduce(factor)), ratio
     return np.asarray(Image.fromarray(rgb).resize(size, Image.Resampling.BILINEAR)), ratio
 
 

@@ -19,7 +19,7 @@ from PIL import ExifTags, Image
 from app.camera import FILM_DIAGONAL_MM, CameraQuery, exif_focal, photo_camera
 from contract.card import load_card
 from contract.geometry import Intrinsics
-from contract.resample import generator_size
+from contract.resample import generator_size, to_model_camera
 from harness.service import BUNDLED_REGISTRY, running_service
 from recordings.frames import read_depth_png
 from trainer.metrics import MetricAccumulator
@@ -115,6 +115,21 @@ def test_the_generator_sees_the_photo_at_the_model_focal_length_within_the_pixel
     (width, height), ratio = generator_size(wide, KITCHEN, 1280 * 960)
     assert ratio < 1 and width * height <= 1280 * 960 and width / height == pytest.approx(4 / 3, rel=0.01)
     assert generator_size(Intrinsics(1e7, 1e7, 0, 0, 1, 3000), KITCHEN, 10**6)[0] == (1, 1)
+
+
+def test_a_photo_a_whole_factor_larger_is_shown_as_the_mean_of_each_block():
+    """At a whole factor each pixel the generator sees is its block's mean (to a grey level), worked out here with NumPy
+    alone; a photo that is no whole factor larger is resampled to the model's focal length at its own size."""
+    rng = np.random.default_rng(3)
+    model = Intrinsics(265.0, 265.0, 159.75, 119.75, 320, 240)
+    for factor in (2, 3):
+        big = rng.integers(0, 256, (240 * factor, 320 * factor, 3), dtype=np.uint8)
+        shown, ratio = to_model_camera(big, model.resized(320 * factor, 240 * factor), model)
+        means = big.reshape(240, factor, 320, factor, 3).astype(np.float64).mean(axis=(1, 3))
+        assert ratio == 1 and shown.shape == (240, 320, 3) and np.abs(shown - means).max() < 1  # within a grey level
+    odd = rng.integers(0, 256, (375, 500, 3), dtype=np.uint8)  # 1.5625x: not whole
+    shown, _ = to_model_camera(odd, model.resized(500, 375), model)
+    assert shown.shape == (240, 320, 3)
 
 
 def test_exif_focal_length_from_the_focal_plane_or_35mm_equivalent_and_turned_with_the_photo():

@@ -263,3 +263,23 @@ def test_export_refuses_a_bundled_models_name_as_fit_does(trained_checkpoint, tm
     assert result.returncode == 1 and "Traceback" not in result.stderr
     assert result.stderr.startswith("error: --name rgb2cloud-7scenes: a bundled model has this name")
     assert not (tmp_path / "registry").exists()
+
+
+def test_evaluate_scores_a_folder_recording_without_intrinsics_json_at_the_camera_given(trained_checkpoint, tmp_path):
+    """aims-lab ships no intrinsics.json: ``--fx --fy --cx --cy`` give its camera, as fit's do; on a layout
+    that carries its own camera they are refused in one line."""
+
+    def evaluate(*args: str) -> subprocess.CompletedProcess:
+        command = [sys.executable, "-m", "cli", "evaluate", str(trained_checkpoint), *args]
+        return subprocess.run(command, cwd=REPO, capture_output=True, text=True)
+
+    aims_lab = ["--format", "folders", "--root", str(SEVEN_SCENES.parent / "aims-lab"), "--frames", "160-161"]
+    camera = ["--fx", "585", "--fy", "585", "--cx", "320", "--cy", "240"]
+    unknown = evaluate(*aims_lab, "--out", str(tmp_path / "a"))
+    assert unknown.returncode == 1 and "no camera intrinsics" in unknown.stderr
+    scored = evaluate(*aims_lab, *camera, "--out", str(tmp_path / "b"))
+    assert scored.returncode == 0, scored.stderr
+    assert json.loads((tmp_path / "b" / "metrics.json").read_text())["metrics"]["images"] == 2
+    refused = evaluate("--format", "7scenes", "--root", str(SEVEN_SCENES), "--frames", "850", *camera)
+    assert refused.returncode == 1 and refused.stderr.startswith("error: --fx, --fy, --cx, --cy and --depth-scale")
+    assert "Traceback" not in refused.stderr
