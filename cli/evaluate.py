@@ -48,15 +48,16 @@ def evaluate(
 ) -> None:
     """Score a model with the paper's metrics and print the paper's table."""
     from contract.errors import UserError
-    from contract.spec import parse_inference_options
     from recordings.folders import CameraFile
+
+    camera = CameraFile(fx, fy, cx, cy, depth_scale)
+    if camera != CameraFile() and format in ("7scenes", "nyu"):
+        raise UserError(f"--fx, --fy, --cx, --cy and --depth-scale: a {format} recording's camera is its own")
+
+    from contract.spec import parse_inference_options
     from trainer.config import DataSource
     from trainer.evaluate import evaluate_source
 
-    given = CameraFile(fx, fy, cx, cy, depth_scale)
-    camera = given if given != CameraFile() else None
-    if camera is not None and format != "folders":
-        raise UserError(f"--fx, --fy, --cx, --cy and --depth-scale describe a folders recording, not {format}")
     source = DataSource(format=format, root=root, frames=frames, split=split, splits_file=splits_file, camera=camera)
     colour = parse_colour_camera(colour_camera) if colour_camera else None
     changes, depth_range = parse_inference_options(inference), (min_depth, max_depth)

@@ -50,8 +50,8 @@ Root = Annotated[Path, typer.Option(help="dataset folder (or .mat / .csv file)",
 Frames = Annotated[
     str | None, typer.Option(help="7scenes frame numbers, e.g. 850-999; other layouts: names, globs or index ranges")
 ]
-#: A folder recording's camera where its intrinsics.json lacks or mistakes it (fit and evaluate read it alike).
-Fx = Annotated[float | None, typer.Option(help="focal length x in pixels (overrides intrinsics.json)")]
+#: A recording's camera where its own files lack or mistake it (folders, tum, csv and, in fit, bags and captures).
+Fx = Annotated[float | None, typer.Option(help="focal length x in pixels (overrides the recording's own)")]
 Fy = Annotated[float | None, typer.Option(help="focal length y in pixels")]
 Cx = Annotated[float | None, typer.Option(help="principal point x in pixels")]
 Cy = Annotated[float | None, typer.Option(help="principal point y in pixels")]

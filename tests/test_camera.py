@@ -117,19 +117,25 @@ def test_the_generator_sees_the_photo_at_the_model_focal_length_within_the_pixel
     assert generator_size(Intrinsics(1e7, 1e7, 0, 0, 1, 3000), KITCHEN, 10**6)[0] == (1, 1)
 
 
-def test_a_photo_a_whole_factor_larger_is_shown_as_the_mean_of_each_block():
-    """At a whole factor each pixel the generator sees is its block's mean (to a grey level), worked out here with NumPy
-    alone; a photo that is no whole factor larger is resampled to the model's focal length at its own size."""
+def test_a_photo_twice_the_generator_s_size_is_shown_as_the_mean_of_each_2x2_block():
+    """At exactly twice the size each pixel the generator sees is its 2x2 block's mean (to a grey level), worked
+    out here with NumPy alone, and on a ramp it is bilinear's value wherever both see whole blocks (the same pixel
+    centres). Any other size, a larger whole factor or twice on one side only, is resampled bilinearly."""
     rng = np.random.default_rng(3)
     model = Intrinsics(265.0, 265.0, 159.75, 119.75, 320, 240)
-    for factor in (2, 3):
-        big = rng.integers(0, 256, (240 * factor, 320 * factor, 3), dtype=np.uint8)
-        shown, ratio = to_model_camera(big, model.resized(320 * factor, 240 * factor), model)
-        means = big.reshape(240, factor, 320, factor, 3).astype(np.float64).mean(axis=(1, 3))
-        assert ratio == 1 and shown.shape == (240, 320, 3) and np.abs(shown - means).max() < 1  # within a grey level
-    odd = rng.integers(0, 256, (375, 500, 3), dtype=np.uint8)  # 1.5625x: not whole
-    shown, _ = to_model_camera(odd, model.resized(500, 375), model)
-    assert shown.shape == (240, 320, 3)
+    big = rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)
+    shown, ratio = to_model_camera(big, model.resized(640, 480), model)
+    means = big.reshape(240, 2, 320, 2, 3).astype(np.float64).mean(axis=(1, 3))
+    assert ratio == 1 and shown.shape == (240, 320, 3) and np.abs(shown - means).max() < 1
+    ramp = np.broadcast_to((np.arange(640) // 3).astype(np.uint8)[None, :, None], (480, 640, 3)).copy()
+    on_ramp, _ = to_model_camera(ramp, model.resized(640, 480), model)
+    bilinear = np.asarray(Image.fromarray(ramp).resize((320, 240), Image.Resampling.BILINEAR))
+    assert np.abs(on_ramp[:, 1:-1].astype(int) - bilinear[:, 1:-1]).max() <= 1
+    for width, height in ((960, 720), (640, 482), (500, 375)):
+        photo = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
+        shown, _ = to_model_camera(photo, model.resized(width, height), model)
+        size = generator_size(model.resized(width, height), model, 10**7)[0]
+        assert np.array_equal(shown, np.asarray(Image.fromarray(photo).resize(size, Image.Resampling.BILINEAR)))
 
 
 def test_exif_focal_length_from_the_focal_plane_or_35mm_equivalent_and_turned_with_the_photo():

@@ -266,8 +266,8 @@ def test_export_refuses_a_bundled_models_name_as_fit_does(trained_checkpoint, tm
 
 
 def test_evaluate_scores_a_folder_recording_without_intrinsics_json_at_the_camera_given(trained_checkpoint, tmp_path):
-    """aims-lab ships no intrinsics.json: ``--fx --fy --cx --cy`` give its camera, as fit's do; on a layout
-    that carries its own camera they are refused in one line."""
+    """aims-lab ships no intrinsics.json: ``--fx --fy --cx --cy`` give its camera, as fit's do; on 7-Scenes,
+    whose camera is its own, they are refused in one line, before any model loads."""
 
     def evaluate(*args: str) -> subprocess.CompletedProcess:
         command = [sys.executable, "-m", "cli", "evaluate", str(trained_checkpoint), *args]
@@ -280,6 +280,8 @@ def test_evaluate_scores_a_folder_recording_without_intrinsics_json_at_the_camer
     scored = evaluate(*aims_lab, *camera, "--out", str(tmp_path / "b"))
     assert scored.returncode == 0, scored.stderr
     assert json.loads((tmp_path / "b" / "metrics.json").read_text())["metrics"]["images"] == 2
-    refused = evaluate("--format", "7scenes", "--root", str(SEVEN_SCENES), "--frames", "850", *camera)
+    seven_scenes = ["--format", "7scenes", "--root", str(SEVEN_SCENES), "--frames", "850"]
+    refused = evaluate(*seven_scenes, *camera, "--out", str(tmp_path / "c"))
     assert refused.returncode == 1 and refused.stderr.startswith("error: --fx, --fy, --cx, --cy and --depth-scale")
+    assert not (tmp_path / "c").exists()
     assert "Traceback" not in refused.stderr

@@ -154,7 +154,10 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
     assert "/depth?model=my-room:0.1.0" in stdout
     holdout = open_source(DataSource(format="csv", root=tmp_path / "run" / "holdout.csv"))
     frames = [holdout[i] for i in range(len(holdout))]
-    with running_service(registry=str(own), bundled_registry=str(registry), model="my-room:0.1.0") as service:
+    # On ONNX Runtime, the engine the tables are scored with: under auto each load may pick its own by timing.
+    with running_service(
+        registry=str(own), bundled_registry=str(registry), model="my-room:0.1.0", engine="onnxruntime"
+    ) as service:
         # One rescale rule: each model is scored at its own card camera, the start's zero-shot row included,
         # so fit's table, evaluate and the service (given the recording's focal length) agree.
         for row, version in zip(card.metrics[:2], (folder, start), strict=True):
