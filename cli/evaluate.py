@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -23,6 +23,9 @@ from cli.options import (
     Root,
     parse_colour_camera,
 )
+
+if TYPE_CHECKING:
+    from recordings.folders import CameraFile
 
 
 def evaluate(
@@ -47,13 +50,7 @@ def evaluate(
     depth_scale: DepthScale = None,
 ) -> None:
     """Score a model with the paper's metrics and print the paper's table."""
-    from contract.errors import UserError
-    from recordings.folders import CameraFile
-
-    camera = CameraFile(fx, fy, cx, cy, depth_scale)
-    if camera != CameraFile() and format in ("7scenes", "nyu"):
-        raise UserError(f"--fx, --fy, --cx, --cy and --depth-scale: a {format} recording's camera is its own")
-
+    camera = recording_camera(format, fx, fy, cx, cy, depth_scale)
     from contract.spec import parse_inference_options
     from trainer.config import DataSource
     from trainer.evaluate import evaluate_source
@@ -66,6 +63,22 @@ def evaluate(
     typer.echo(f"wrote {out}/metrics.json, metrics.md, pc_rmse_curve.png, samples.png")
 
 
+def recording_camera(
+    format: str, fx: float | None, fy: float | None, cx: float | None, cy: float | None, depth_scale: float | None
+) -> CameraFile | None:
+    """The camera the command line gives a recording (None: none given), refused in one line for a layout whose
+    reader keeps its own (7-Scenes, NYU), before any model or recording loads."""
+    from contract.errors import UserError
+    from recordings.folders import CameraFile
+
+    camera = CameraFile(fx, fy, cx, cy, depth_scale)
+    if camera == CameraFile():
+        return None
+    if format in ("7scenes", "nyu"):
+        raise UserError(f"--fx, --fy, --cx, --cy and --depth-scale: a {format} recording's camera is its own")
+    return camera
+
+
 def baselines(
     format: Format,
     root: Root,
@@ -74,13 +87,19 @@ def baselines(
     out: Annotated[Path | None, typer.Option(help="also write baselines.json here")] = None,
     min_depth: MinDepth = 0.1,
     max_depth: MaxDepth = 10.0,
+    fx: Fx = None,
+    fy: Fy = None,
+    cx: Cx = None,
+    cy: Cy = None,
+    depth_scale: DepthScale = None,
 ) -> None:
     """Score the image-free baselines (train median; per-pixel train median) on a test split."""
+    camera = recording_camera(format, fx, fy, cx, cy, depth_scale)
     from trainer.baselines import baselines_table
     from trainer.config import DataSource
 
-    train_source = DataSource(format=format, root=root, frames=train_frames)
-    test_source = DataSource(format=format, root=root, frames=test_frames)
+    train_source = DataSource(format=format, root=root, frames=train_frames, camera=camera)
+    test_source = DataSource(format=format, root=root, frames=test_frames, camera=camera)
     typer.echo(baselines_table(train_source, test_source, (min_depth, max_depth), out))
 
 

@@ -265,7 +265,9 @@ def test_export_refuses_a_bundled_models_name_as_fit_does(trained_checkpoint, tm
     assert not (tmp_path / "registry").exists()
 
 
-def test_evaluate_scores_a_folder_recording_without_intrinsics_json_at_the_camera_given(trained_checkpoint, tmp_path):
+def test_evaluate_scores_a_folder_recording_without_intrinsics_json_at_the_camera_given(
+    trained_checkpoint, evaluated, tmp_path
+):
     """aims-lab ships no intrinsics.json: ``--fx --fy --cx --cy`` give its camera, as fit's do; on 7-Scenes,
     whose camera is its own, they are refused in one line, before any model loads."""
 
@@ -279,9 +281,14 @@ def test_evaluate_scores_a_folder_recording_without_intrinsics_json_at_the_camer
     assert unknown.returncode == 1 and "no camera intrinsics" in unknown.stderr
     scored = evaluate(*aims_lab, *camera, "--out", str(tmp_path / "b"))
     assert scored.returncode == 0, scored.stderr
-    assert json.loads((tmp_path / "b" / "metrics.json").read_text())["metrics"]["images"] == 2
+    report = json.loads((tmp_path / "b" / "metrics.json").read_text())
+    assert report["metrics"]["images"] == 2 and report["camera_given"] == {"fx": 585, "fy": 585, "cx": 320, "cy": 240}
+    assert json.loads((evaluated[0] / "metrics.json").read_text())["camera_given"] is None  # 7-Scenes' own
     seven_scenes = ["--format", "7scenes", "--root", str(SEVEN_SCENES), "--frames", "850"]
     refused = evaluate(*seven_scenes, *camera, "--out", str(tmp_path / "c"))
     assert refused.returncode == 1 and refused.stderr.startswith("error: --fx, --fy, --cx, --cy and --depth-scale")
     assert not (tmp_path / "c").exists()
+    lab = ["--format", "folders", "--root", str(SEVEN_SCENES.parent / "aims-lab")]
+    medians = run_cli("baselines", *lab, "--train-frames", "0-9", "--test-frames", "160-161", *camera).stdout
+    assert "median" in medians
     assert "Traceback" not in refused.stderr

@@ -211,11 +211,13 @@ def write_report(
     label: str,
     depth_range: tuple[float, float],
     colour_camera: ColourCamera | None = None,
+    camera_given: dict[str, float] | None = None,
 ) -> str:
     """Write JSON, Markdown, the curve and the samples; return the Markdown table.
 
     ``colour_camera`` is recorded as ``read_at_colour_camera`` (null: pixel to pixel), so a
-    card built from this file says how its numbers were read.
+    card built from this file says how its numbers were read; ``camera_given`` (the recording's
+    camera from the command line, where its own files lacked or mistook it) as ``camera_given``.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -225,6 +227,7 @@ def write_report(
         "depth_range_m": list(depth_range),
         "averaging": "per image over its valid pixels, then the mean over images; no median scaling",
         "read_at_colour_camera": colour_camera.model_dump() if colour_camera else None,
+        "camera_given": camera_given,
         "metrics": result,
         "beats_paper": beats(result, PAPER_TUM),
         "per_image": per_image,
@@ -300,4 +303,5 @@ def evaluate_source(
         label=label,
         depth_range=depth_range,
         colour_camera=colour_camera,
+        camera_given={k: v for k, v in vars(source.camera).items() if v is not None} if source.camera else None,
     )
