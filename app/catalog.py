@@ -242,9 +242,13 @@ class ModelCatalog:
     def _serving(model: LoadedModel) -> dict[str, Any]:
         """How a loaded version runs here: each precision's engine and why it won, what auto serves, what was
         measured at load (generator ms on the check photo: the median, and the fastest and slowest run), how long its
-        load's checks and measurements took, why any precision is not served, and why any engine was left out of
-        a precision another engine serves."""
+        load's checks and measurements took, why any precision is not served, why any engine was left out of
+        a precision another engine serves, and the photo they were checked on."""
+        sample = model.card.sample
         return {
+            "checked_on": f"the version's sample photo ({sample})"
+            if sample
+            else "a stand-in texture (app.loading.stand_in_photo): this version ships no sample photo",
             "engines": dict(model.engines),
             "chosen": dict(model.chosen),
             "auto": model.auto,

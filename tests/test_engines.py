@@ -18,6 +18,7 @@ from conftest import REPO, SEVEN_SCENES, TUM_FRAME
 from PIL import Image
 
 import app.loading
+from app.catalog import ModelCatalog
 from app.engine_choice import MARGIN
 from app.loading import load_version
 from app.settings import Settings
@@ -154,6 +155,7 @@ def test_auto_measures_both_engines_at_load_and_says_what_it_chose(reference):
             assert not (served and f"{engine} int8" in dropped)
         # Whichever engine won fp32, /v1/models says why in the choice's own words (app.engine_choice.fastest,
         # whose rule the scripted-timing tests check): OpenVINO only as faster than ONNX Runtime in every run.
+        assert serving["checked_on"] == "the version's sample photo (int8-sample.png)"
         chosen, why = serving["engines"]["fp32"], serving["chosen"]["fp32"]
         assert why.startswith(chosen), why
         if chosen == "openvino":
@@ -192,6 +194,7 @@ def test_a_version_without_a_sample_is_checked_on_a_texture_where_both_engines_a
     model = load_version(old, Settings(bundled_registry=BUNDLED, threads=2))
     assert {"onnxruntime fp32", "openvino fp32"} <= set(model.measured), (model.dropped, model.unserved)
     assert "openvino fp32" not in model.dropped
+    assert ModelCatalog._serving(model)["checked_on"].startswith("a stand-in texture")  # what /v1/models says
     if bf16_units():
         assert "ships no sample photo" in model.unserved["bf16"]
 
