@@ -110,7 +110,31 @@ def depth_to_photo(depth: np.ndarray, photo: Intrinsics) -> np.ndarray:
     """The generator's depth (metres, at the size ``to_model_camera`` gave) back at the photo's own pixels:
     the same array where the photo was shown as it is."""
     depth = np.asarray(depth, dtype=np.float32)
-    if (depth.shape[1], depth.shape[0]) == (photo.width, photo.height):
+    height, width = depth.shape
+    if (width, height) == (photo.width, photo.height):
         return depth
+    if (photo.width, photo.height) == (2 * width, 2 * height):
+        return bilinear_twice(depth)
     back = Image.fromarray(depth, mode="F").resize((photo.width, photo.height), Image.Resampling.BILINEAR)
     return np.asarray(back, dtype=np.float32)
+
+
+def bilinear_twice(depth: np.ndarray) -> np.ndarray:
+    """Pillow's bilinear resize of float32 ``depth`` to exactly twice its width and height, in NumPy.
+
+    At twice the size every output pixel's centre falls a quarter of a pixel from its source pixel's, so
+    bilinear weighs that pixel 3/4 and its neighbour on that side 1/4, the edge pixel standing in for the
+    neighbour it lacks, as Pillow's does: the same depth to float32's rounding, at about a third of
+    Pillow's time for a 320x240 depth (the stream's ``resample_back`` stage, docs/benchmarks.md).
+    """
+    padded = np.pad(depth, 1, mode="edge")
+    height, width = depth.shape
+    rows = np.empty((height + 2, 2 * width), dtype=np.float32)
+    centre = 0.75 * padded[:, 1:-1]
+    np.add(centre, 0.25 * padded[:, :-2], out=rows[:, 0::2])
+    np.add(centre, 0.25 * padded[:, 2:], out=rows[:, 1::2])
+    out = np.empty((2 * height, 2 * width), dtype=np.float32)
+    centre = 0.75 * rows[1:-1]
+    np.add(centre, 0.25 * rows[:-2], out=out[0::2])
+    np.add(centre, 0.25 * rows[2:], out=out[1::2])
+    return out

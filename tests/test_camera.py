@@ -19,7 +19,7 @@ from PIL import ExifTags, Image
 from app.camera import FILM_DIAGONAL_MM, CameraQuery, exif_focal, photo_camera
 from contract.card import load_card
 from contract.geometry import Intrinsics
-from contract.resample import generator_size, to_model_camera
+from contract.resample import depth_to_photo, generator_size, to_model_camera
 from harness.service import BUNDLED_REGISTRY, running_service
 from recordings.frames import read_depth_png
 from trainer.metrics import MetricAccumulator
@@ -136,6 +136,23 @@ def test_a_photo_twice_the_generator_s_size_is_shown_as_the_mean_of_each_2x2_blo
         shown, _ = to_model_camera(photo, model.resized(width, height), model)
         size = generator_size(model.resized(width, height), model, 10**7)[0]
         assert np.array_equal(shown, np.asarray(Image.fromarray(photo).resize(size, Image.Resampling.BILINEAR)))
+
+
+def test_depth_at_half_the_photo_s_size_comes_back_as_pillow_s_bilinear_at_twice_it():
+    """The depth's way back at exactly twice its size (NumPy, ``bilinear_twice``) is Pillow's bilinear resize to
+    float32's rounding, edges and all, on shapes down to one pixel; any other size is Pillow's own."""
+    rng = np.random.default_rng(5)
+    for height, width in ((240, 320), (1, 1), (1, 7), (5, 2), (9, 13)):
+        depth = rng.uniform(0.2, 8.0, (height, width)).astype(np.float32)
+        back = depth_to_photo(depth, Intrinsics(500.0, 500.0, width, height, 2 * width, 2 * height))
+        pillow = np.asarray(Image.fromarray(depth, mode="F").resize((2 * width, 2 * height), Image.Resampling.BILINEAR))
+        assert back.dtype == np.float32 and back.shape == (2 * height, 2 * width)
+        np.testing.assert_allclose(back, pillow, rtol=1e-6, atol=0)
+    depth = rng.uniform(0.2, 8.0, (240, 320)).astype(np.float32)
+    for width, height in ((960, 720), (640, 482)):
+        back = depth_to_photo(depth, Intrinsics(500.0, 500.0, width / 2, height / 2, width, height))
+        pillow = np.asarray(Image.fromarray(depth, mode="F").resize((width, height), Image.Resampling.BILINEAR))
+        assert np.array_equal(back, pillow)
 
 
 def test_exif_focal_length_from_the_focal_plane_or_35mm_equivalent_and_turned_with_the_photo():

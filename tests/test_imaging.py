@@ -7,7 +7,7 @@ import io
 import numpy as np
 from PIL import Image
 
-from contract.encodings import encode_depth_png
+from contract.encodings import depth_millimetres, encode_depth_png
 
 
 def test_depth_png_round_trips_exactly_in_millimetres():
@@ -20,3 +20,14 @@ def test_depth_png_round_trips_exactly_in_millimetres():
     expected = np.clip(np.rint(np.nan_to_num(metres, posinf=0) * 1000), 0, 65535)
     expected[0, :4] = 0
     np.testing.assert_array_equal(decoded, expected.astype(np.uint16))
+
+
+def test_millimetres_are_rounded_at_the_depth_s_own_precision_in_either_byte_order():
+    """float64 depth is rounded from its float64 millimetres, as float32 depth from float32's: a value a
+    float32 product would push over half a millimetre keeps its own rounding."""
+    rng = np.random.default_rng(1)
+    metres = np.concatenate([rng.uniform(0.2, 12.0, 500), np.arange(1000) / 1000 + 0.0005])
+    for depth in (metres, metres.astype(np.float32)):
+        expected = np.rint(depth * 1000).astype(np.uint16)
+        assert np.array_equal(depth_millimetres(depth), expected)
+        assert depth_millimetres(depth, ">u2").tobytes() == expected.astype(">u2").tobytes()
