@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import io
 import warnings
-from dataclasses import dataclass
 
 import numpy as np
-from PIL import Image, ImageOps, UnidentifiedImageError
+from PIL import ExifTags, Image, ImageOps, UnidentifiedImageError
 
 from app.camera import exif_focal
 from contract.colormap import colorize
@@ -47,16 +46,52 @@ def _to_rgb(im: Image.Image) -> np.ndarray:
     return np.asarray(im.convert("RGB"), dtype=np.uint8)
 
 
-@dataclass(frozen=True)
-class Photo:
-    """The upright photo as HxWx3 uint8 RGB, and the focal length (fx, fy) in its pixels that its EXIF gives."""
-
-    rgb: np.ndarray
-    exif_focal: tuple[float, float] | None
+#: EXIF orientations that turn the photo a quarter: its upright width is its stored height.
+QUARTER_TURNS = (5, 6, 7, 8)
 
 
-def decode_image(data: bytes, max_pixels: int, subject: str = "the 'image' field") -> Photo:
-    """Upload bytes -> the upright RGB photo and its EXIF focal length, or ``BadImage`` that names ``subject``."""
+class Upload:
+    """An upload whose header was read and checked; its pixels are decoded by ``rgb``, at full or half size.
+
+    Split so that the camera, which the upright size and EXIF give, is known before any pixel is decoded: a
+    photo the generator sees at exactly half its size can then be decoded at half (``rgb``'s ``at``).
+    """
+
+    def __init__(self, data: bytes, image: Image.Image):
+        self.data = data
+        try:
+            image.seek(0)  # animated formats: the first frame
+            #: The focal length (fx, fy) in the upright photo's pixels that its EXIF gives, or None.
+            self.exif_focal = exif_focal(image)
+            self.turned = image.getexif().get(ExifTags.Base.Orientation) in QUARTER_TURNS
+        except Exception as e:  # a header whose EXIF or frames cannot be read
+            raise BadImage(400, f"the image data is truncated or corrupt: {e}") from None
+        width, height = image.size
+        #: The upright photo's (width, height), its EXIF orientation applied.
+        self.size = (height, width) if self.turned else (width, height)
+
+    def rgb(self, at: tuple[int, int] | None = None) -> np.ndarray:
+        """The upright photo, HxWx3 uint8; at ``at`` (width, height) where that is exactly half its size and it
+        is a JPEG, otherwise at its own size, so callers check the size they get. Each call decodes anew.
+
+        A JPEG is decoded at half by libjpeg's DCT scaling: a quarter of the pixels are computed and none is
+        resampled afterwards, in about half the time of a full decode and its 2x2 mean, for depth whose
+        held-out δ1 moved by 0.0001 at most (``bench/jpeg_half.py``, docs/benchmarks.md).
+        """
+        try:
+            im = Image.open(io.BytesIO(self.data))
+            im.seek(0)
+            if at is not None and (2 * at[0], 2 * at[1]) == self.size and im.format == "JPEG":
+                im.draft("RGB", (at[1], at[0]) if self.turned else at)
+            im.load()
+            return _to_rgb(ImageOps.exif_transpose(im))
+        except Exception as e:  # truncated or corrupt pixel data
+            raise BadImage(400, f"the image data is truncated or corrupt: {e}") from None
+
+
+def open_upload(data: bytes, max_pixels: int, subject: str = "the 'image' field") -> Upload:
+    """Upload bytes -> its checked header (``Upload``), or ``BadImage`` that names ``subject``: no pixel is
+    decoded before the pixel count is within ``max_pixels``."""
     if not data:
         raise BadImage(400, f"{subject} is empty")
     try:
@@ -74,13 +109,7 @@ def decode_image(data: bytes, max_pixels: int, subject: str = "the 'image' field
         raise BadImage(400, f"image is {width}x{height}")
     if width * height > max_pixels:
         raise BadImage(413, f"image is {width}x{height} = {width * height} pixels; the limit is {max_pixels}")
-    try:
-        im.seek(0)  # animated formats: the first frame
-        im.load()
-        focal = exif_focal(im)
-        return Photo(_to_rgb(ImageOps.exif_transpose(im)), focal)
-    except Exception as e:  # truncated or corrupt pixel data
-        raise BadImage(400, f"the image data is truncated or corrupt: {e}") from None
+    return Upload(data, im)
 
 
 def encode_colormap_png(metres: np.ndarray, vmin: float, vmax: float) -> bytes:

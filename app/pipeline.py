@@ -9,12 +9,12 @@ from typing import Literal
 import numpy as np
 
 from app.camera import CameraQuery, PhotoCamera, photo_camera
-from app.imaging import decode_image, encode_colormap_png
+from app.imaging import encode_colormap_png, open_upload
 from app.loading import LoadedModel
 from app.temporal import TemporalFilter
 from contract.encodings import depth_metres, depth_millimetres, encode_depth_png, encode_ply
 from contract.geometry import point_cloud
-from contract.resample import depth_to_photo, to_model_camera
+from contract.resample import depth_to_photo, generator_size, to_model_camera
 from contract.runtime import RunPrecision
 
 
@@ -52,7 +52,8 @@ class Stopwatch:
 class Inferred:
     """A decoded photo, its depth, the camera it was inferred with, and the generator's focal ratio."""
 
-    rgb: np.ndarray
+    #: The upright photo at its own size, or None where only its depth was asked for.
+    rgb: np.ndarray | None
     depth: np.ndarray
     camera: PhotoCamera
     focal_ratio: float
@@ -78,23 +79,41 @@ class Inferred:
 
 
 def _photo_and_depth(
-    model: LoadedModel, data: bytes, settings: RequestSettings, query: CameraQuery, watch: Stopwatch
+    model: LoadedModel,
+    data: bytes,
+    settings: RequestSettings,
+    query: CameraQuery,
+    watch: Stopwatch,
+    colours: bool,
 ) -> Inferred:
-    photo = decode_image(data, settings.max_pixels, settings.subject)
+    """The photo's depth at its own pixels; ``colours``: the photo at its own size too, for a point cloud.
+
+    A JPEG the generator sees at exactly half its size is decoded at that size for the generator, whatever
+    else is asked for, so that a photo's depth is the same from every route (``app.imaging.Upload.rgb``).
+    """
+    upload = open_upload(data, settings.max_pixels, settings.subject)
+    width, height = upload.size
+    camera = photo_camera(model.card.camera, width, height, query, upload.exif_focal)
+    size, ratio = generator_size(camera.intrinsics, model.card.camera, settings.inference_max_pixels)
+    shown = upload.rgb(size)
+    at_own_size = shown.shape[:2] == (height, width)
+    rgb = (shown if at_own_size else upload.rgb()) if colours else None
     watch.lap("decode")
-    height, width = photo.rgb.shape[:2]
-    camera = photo_camera(model.card.camera, width, height, query, photo.exif_focal)
     precision = model.serving(settings.precision)
     # The one rescale rule (contract.resample), a stage at a time: the photo to the model's focal length, the
     # generator (to metres), and its depth back at the photo's pixels; either resample is nothing where the
-    # photo's camera is the model's.
-    seen, ratio = to_model_camera(photo.rgb, camera.intrinsics, model.card.camera, settings.inference_max_pixels)
+    # photo's camera is the model's or the photo was decoded at the generator's size.
+    seen = (
+        to_model_camera(shown, camera.intrinsics, model.card.camera, settings.inference_max_pixels)[0]
+        if at_own_size
+        else shown
+    )
     watch.lap("resample")
     depth = model.predict_depth(seen, precision)
     watch.lap("inference")
     depth = depth_to_photo(depth, camera.intrinsics)
     watch.lap("resample_back")
-    return Inferred(photo.rgb, depth, camera, ratio, precision, settings.precision)
+    return Inferred(rgb if colours else None, depth, camera, ratio, precision, settings.precision)
 
 
 @dataclass(frozen=True)
@@ -110,7 +129,7 @@ class RequestSettings:
 
 def depth_png(model: LoadedModel, data: bytes, settings: RequestSettings, query: CameraQuery, colormap: bool) -> Result:
     watch = Stopwatch()
-    inferred = _photo_and_depth(model, data, settings, query, watch)
+    inferred = _photo_and_depth(model, data, settings, query, watch, colours=False)
     depth, headers = inferred.depth, inferred.headers(model)
     if colormap:
         lo, hi = (float(v) for v in np.percentile(depth, [2, 98]))
@@ -135,7 +154,8 @@ def point_cloud_ply(
 ) -> Result:
     """Formula (5) with the photo's own camera: the one its depth was inferred with."""
     watch = Stopwatch()
-    inferred = _photo_and_depth(model, data, settings, query, watch)
+    inferred = _photo_and_depth(model, data, settings, query, watch, colours=True)
+    assert inferred.rgb is not None
     k = inferred.camera.intrinsics
     points = point_cloud(
         inferred.depth, inferred.rgb, k, stride=options.stride, min_depth=options.min_depth, max_depth=options.max_depth
@@ -191,7 +211,8 @@ def stream_frame(
     """One frame of a stream (``app.stream``): the depth and point cloud of ``/depth`` and ``/pointcloud``
     from one inference, in the encodings the stream asked for, through the stream's temporal filter if any."""
     watch = Stopwatch()
-    inferred = _photo_and_depth(model, data, settings, query, watch)
+    cloud = options.output in ("pointcloud", "both")
+    inferred = _photo_and_depth(model, data, settings, query, watch, colours=cloud)
     if smoother is not None:
         inferred.depth = smoother.apply(inferred.depth)
         watch.lap("smooth")
@@ -205,7 +226,8 @@ def stream_frame(
         else:
             payloads.append(("depth", "raw32", depth_metres(inferred.depth).tobytes()))
         watch.lap("encode")
-    if options.output in ("pointcloud", "both"):
+    if cloud:
+        assert inferred.rgb is not None
         bounds = options.cloud
         points = point_cloud(
             inferred.depth,

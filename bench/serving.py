@@ -32,7 +32,7 @@ from PIL import Image
 from serving_http import http_figures, share_tables, throughput_table
 
 from app.catalog import ModelCatalog
-from app.imaging import decode_image
+from app.imaging import open_upload
 from app.loading import LoadedModel
 from app.settings import Settings
 from contract.card import INT8_ONNX_FILE, ONNX_FILE, TORCHSCRIPT_FILE, ModelCard, list_versions
@@ -153,7 +153,7 @@ class Photo:
     @classmethod
     def load(cls, path: Path, model: LoadedModel, max_pixels: int) -> Photo:
         data = path.read_bytes()
-        rgb = decode_image(data, max_pixels).rgb
+        rgb = open_upload(data, max_pixels).rgb()
         h, w = rgb.shape[:2]
         c = model.card.camera
         camera = Intrinsics(c.fx, c.fy, c.cx, c.cy, c.width, c.height).resized(w, h)
@@ -171,7 +171,7 @@ def stage_times(photo: Photo, max_pixels: int, r: int) -> dict[str, float]:
     h, w = rgb.shape[:2]
     points = point_cloud(depth, rgb, k)
     return {
-        "decode (JPEG -> RGB)": median_ms(lambda: decode_image(photo.data, max_pixels), r),
+        "decode (JPEG -> RGB)": median_ms(lambda: open_upload(photo.data, max_pixels).rgb(), r),
         "fit to grid (pad + normalise)": median_ms(lambda: rgb_to_input(pad_to_multiple(rgb, card.input_multiple)), r),
         "generator (ONNX Runtime)": photo.generator_ms(r),
         "depth decode (tanh -> metres)": median_ms(lambda: card.depth_encoding.decode(photo.x[0, 0, :h, :w]), r),

@@ -77,15 +77,17 @@ def fit_site(run: Path) -> Site:
     return Site(run.name, load_predictor(Path(state.published)), frames, depth_range, state.colour_camera)
 
 
-def kitchen_site(version: Path) -> Site:
-    """A 7-Scenes version on the test split as its card scored it (frames 850-999, the card's colour camera)."""
+def kitchen_site(version: Path, model: Path | None = None) -> Site:
+    """A 7-Scenes version on the test split as its card scored it (frames 850-999, the card's colour camera);
+    ``model`` (a checkpoint, or another version) scored in its place the same way, if given."""
     card = load_card(version)
     test = next((m for m in card.metrics if m.split.startswith("7scenes-redkitchen 850-999")), None)
     if test is None:
         raise SystemExit(f"{version}: its card has no 7-Scenes test split (7scenes-redkitchen 850-999) to score on")
     frames = open_source(DataSource(format="7scenes", root=SEVEN_SCENES, frames="850-999"))
-    label = f"{card.name} {card.version}, 7-Scenes test"
-    return Site(label, load_predictor(version), frames, test.depth_range_m, test.colour_camera)
+    predictor = load_predictor(model or version)
+    label = f"{predictor.label if model else f'{card.name} {card.version}'}, 7-Scenes test"
+    return Site(label, predictor, frames, test.depth_range_m, test.colour_camera)
 
 
 def site_rows(site: Site, scales: list[float], repeats: int) -> list[str]:

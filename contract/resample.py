@@ -7,7 +7,10 @@ that its focal length equals the model's, runs the generator, and maps the depth
 photo's own pixels. Resampling changes no distance, so the depth in metres needs no correction.
 
 The service, fit's held-out table, ``rgb2cloud evaluate``, training's validation and the int8
-calibration all call this module and nothing else, so their numbers agree to the third decimal.
+calibration all call this module and nothing else, so their numbers agree to the third decimal. One
+decode differs: a JPEG the generator sees at exactly half its size the service decodes at half
+(``app.imaging.Upload.rgb``) in place of this module's 2x2 mean of its full decode, which moved
+held-out δ1 by 0.0001 at most (``bench/jpeg_half.py``).
 Torch-free: the serving install has no torch.
 """
 
