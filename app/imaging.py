@@ -59,6 +59,8 @@ class Upload:
 
     def __init__(self, data: bytes, image: Image.Image):
         self.data = data
+        #: The image whose header was read, decoded by the first ``rgb``; later calls open the data again.
+        self._unread: Image.Image | None = image
         try:
             image.seek(0)  # animated formats: the first frame
             #: The focal length (fx, fy) in the upright photo's pixels that its EXIF gives, or None.
@@ -72,15 +74,17 @@ class Upload:
 
     def rgb(self, at: tuple[int, int] | None = None) -> np.ndarray:
         """The upright photo, HxWx3 uint8; at ``at`` (width, height) where that is exactly half its size and it
-        is a JPEG, otherwise at its own size, so callers check the size they get. Each call decodes anew.
+        is a JPEG, otherwise at its own size, so callers check the size they get. Each call decodes afresh.
 
         A JPEG is decoded at half by libjpeg's DCT scaling: a quarter of the pixels are computed and none is
         resampled afterwards, in about half the time of a full decode and its 2x2 mean, for depth whose
         held-out δ1 moved by 0.0001 at most (``bench/jpeg_half.py``, docs/benchmarks.md).
         """
+        im, self._unread = self._unread, None
         try:
-            im = Image.open(io.BytesIO(self.data))
-            im.seek(0)
+            if im is None:
+                im = Image.open(io.BytesIO(self.data))
+                im.seek(0)
             if at is not None and (2 * at[0], 2 * at[1]) == self.size and im.format == "JPEG":
                 im.draft("RGB", (at[1], at[0]) if self.turned else at)
             im.load()
