@@ -13,7 +13,7 @@ import warnings
 import numpy as np
 from PIL import ExifTags, Image, ImageOps, UnidentifiedImageError
 
-from app.camera import exif_focal
+from app.camera import QUARTER_TURNS, exif_focal
 from contract.colormap import colorize
 from contract.encodings import PNG_COMPRESS_LEVEL
 
@@ -46,8 +46,8 @@ def _to_rgb(im: Image.Image) -> np.ndarray:
     return np.asarray(im.convert("RGB"), dtype=np.uint8)
 
 
-#: EXIF orientations that turn the photo a quarter: its upright width is its stored height.
-QUARTER_TURNS = (5, 6, 7, 8)
+#: Pillow's names for JPEG files: plain, and the multi-picture JPEG some cameras and phones write.
+JPEG_FORMATS = ("JPEG", "MPO")
 
 
 class Upload:
@@ -85,7 +85,7 @@ class Upload:
             if im is None:
                 im = Image.open(io.BytesIO(self.data))
                 im.seek(0)
-            if at is not None and (2 * at[0], 2 * at[1]) == self.size and im.format == "JPEG":
+            if at is not None and (2 * at[0], 2 * at[1]) == self.size and im.format in JPEG_FORMATS:
                 im.draft("RGB", (at[1], at[0]) if self.turned else at)
             im.load()
             return _to_rgb(ImageOps.exif_transpose(im))

@@ -101,8 +101,8 @@ def _photo_and_depth(
     watch.lap("decode")
     precision = model.serving(settings.precision)
     # The one rescale rule (contract.resample), a stage at a time: the photo to the model's focal length, the
-    # generator (to metres), and its depth back at the photo's pixels; either resample is nothing where the
-    # photo's camera is the model's or the photo was decoded at the generator's size.
+    # generator (to metres), and its depth back at the photo's pixels. The photo's resample is nothing where its
+    # camera is the model's or it was decoded at the generator's size; the depth's, where its camera is the model's.
     seen = (
         to_model_camera(shown, camera.intrinsics, model.card.camera, settings.inference_max_pixels)[0]
         if at_own_size
@@ -113,7 +113,7 @@ def _photo_and_depth(
     watch.lap("inference")
     depth = depth_to_photo(depth, camera.intrinsics)
     watch.lap("resample_back")
-    return Inferred(rgb if colours else None, depth, camera, ratio, precision, settings.precision)
+    return Inferred(rgb, depth, camera, ratio, precision, settings.precision)
 
 
 @dataclass(frozen=True)

@@ -4,9 +4,9 @@
         runs/bench-levers/runs/live-half-mosd-tabletop [--kitchen runs/live-kitchen-0/checkpoints/last.pt ...] \\
         [--repeats 50]
 
-Where only depth is asked for and the generator sees a JPEG at exactly half its width and height, the service
-decodes it at half (libjpeg's DCT scaling, ``app.imaging.Upload.rgb``), while ``rgb2cloud evaluate``, fit's
-held-out table and training decode every photo in full and take each 2x2 block's mean (``contract.resample``).
+Where the generator sees a JPEG at exactly half its width and height, the service decodes it at half (libjpeg's
+DCT scaling, ``app.imaging.Upload.rgb``) on every route, while ``rgb2cloud evaluate``, fit's held-out table and
+training's validation decode every photo in full and take each 2x2 block's mean (``contract.resample``).
 This scores each model on its held-out JPEG frames both ways, with the same metrics and the same generator (ONNX
 Runtime fp32 for a version, eager for a checkpoint), and times both decodes on the first frame, taking turns.
 Each argument is the run folder of an `rgb2cloud fit --pixels` (its published version, on fit.json's held-out
@@ -35,7 +35,7 @@ NO_LIMIT = 1 << 40
 
 
 def half_decoded(model: Predictor, paths: dict[int, Path]) -> FramePredict:
-    """The model's depth for each frame's JPEG file decoded at half, as the service decodes it for depth alone.
+    """The model's depth for each frame's JPEG file decoded at half, as the service decodes it.
 
     ``paths`` maps each frame's photo (by ``id``) to its file; the file's full decode must be that photo.
     """

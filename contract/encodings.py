@@ -32,11 +32,13 @@ def depth_millimetres(metres: np.ndarray, dtype: str = "<u2") -> np.ndarray:
     """Metres -> whole millimetres as 16-bit integers (0 = no depth; beyond 65.535 m clipped), in ``dtype``'s
     byte order: big-endian for PNG, little-endian for the stream's raw depth.
 
-    In place on one copy (float32, or float64 for float64 depth), as every frame's depth passes here: a third
-    of the time of masking, rounding and clipping into fresh arrays at 640x480 (the stream's ``encode`` stage).
+    In place on one copy (float32, or float64 for float64 depth), as every frame's depth passes here: about
+    two thirds of the time of masking, rounding and clipping into fresh arrays at 640x480 (the stream's
+    ``encode`` stage, docs/benchmarks.md).
     """
-    mm = np.multiply(metres, 1000.0, dtype=np.result_type(metres, np.float32))
-    mm[~((mm > 0) & (mm < np.inf))] = 0  # NaN, infinities, zero and below
+    with np.errstate(over="ignore"):  # a finite depth too far for its type: infinite millimetres, clipped below
+        mm = np.multiply(metres, 1000.0, dtype=np.result_type(metres, np.float32))
+    mm[~(np.isfinite(metres) & (metres > 0))] = 0
     np.rint(mm, out=mm)
     np.minimum(mm, 65535, out=mm)
     return mm.astype(dtype)

@@ -22,6 +22,15 @@ def test_depth_png_round_trips_exactly_in_millimetres():
     np.testing.assert_array_equal(decoded, expected.astype(np.uint16))
 
 
+def test_millimetres_keep_their_rule_for_every_value_either_precision_can_hold():
+    """0 for no depth (NaN, infinities, zero and below), whole millimetres, and 65535 for any finite depth beyond
+    65.535 m, however far: a depth whose millimetres overflow its type is still far, not missing."""
+    for dtype, huge in ((np.float32, 3.4e38), (np.float64, 1e306)):
+        metres = np.array([np.nan, np.inf, -np.inf, -1.0, 0.0, 1e-4, 0.0006, 1.2344, 65.535, 70.0, huge], dtype=dtype)
+        expected = [0, 0, 0, 0, 0, 0, 1, 1234, 65535, 65535, 65535]
+        assert depth_millimetres(metres).tolist() == expected, dtype
+
+
 def test_millimetres_are_rounded_at_the_depth_s_own_precision_in_either_byte_order():
     """float64 depth is rounded from its float64 millimetres, as float32 depth from float32's: a value a
     float32 product would push over half a millimetre keeps its own rounding."""
