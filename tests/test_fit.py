@@ -146,7 +146,11 @@ def test_fit_end_to_end_publishes_a_model_the_service_serves(registry, tmp_path,
     assert card.int8 is not None and card.int8.file in card.files
     assert card.int8.frames_from == ["train.csv all"]  # calibrated on the run folder's train part
     optim = card.training.config["optim"]
-    assert (optim["lr"], optim["beta1"]) == (0.0005, 0.9)  # and Adam set for a regression
+    # And Adam set for a regression: fit's peak rate, unless the Pacer re-planned on a slow machine so that the decay
+    # had to start at step 0, from a lower peak that keeps the rate reached (trainer.fit.budget.continued_decay).
+    assert optim["beta1"] == 0.9 and (
+        optim["lr"] == 0.0005 or (optim["decay_start"] == 0 and 0 < optim["lr"] < 0.0005)
+    ), optim
     transform = card.training.config["data"]["transform"]
     assert (transform["extent"], transform["whole_share"]) == ([1.0, 1.0], 0.0)  # whole frames, whatever the start's
     # The exact commands to serve it, and the service does.
